@@ -1,0 +1,82 @@
+"""Spread the leading batch axis of any pytree over all devices.
+
+``shard_batch`` places every array leaf of a pytree on a one-dimensional device mesh, split along
+its leading axis. A ``jax.jit`` of a ``jax.vmap``-ed function called on such arrays then runs on
+every device in parallel (XLA partitions it automatically); the result is sharded the same way and
+equals the unsharded one. The same code runs on one CPU, several GPUs, or several hosts under
+``jax.distributed`` (there each process passes its own slice of the batch).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+
+def batch_mesh(devices: Sequence[jax.Device] | None = None, axis_name: str = "batch") -> Mesh:
+    """A one-dimensional mesh over ``devices`` (default: all devices of all processes)."""
+    devs = np.asarray(jax.devices() if devices is None else list(devices))
+    return Mesh(devs, (axis_name,))
+
+
+def batch_sharding(devices: Sequence[jax.Device] | None = None, axis_name: str = "batch") -> NamedSharding:
+    """The sharding that splits axis 0 over ``devices`` and replicates the rest."""
+    return NamedSharding(batch_mesh(devices, axis_name), PartitionSpec(axis_name))
+
+
+def shard_batch(tree, *, devices: Sequence[jax.Device] | None = None, pad: bool = False):
+    """Shard the leading axis of every array leaf of ``tree`` over ``devices``.
+
+    Args:
+        tree: a pytree whose array leaves all share the leading (batch) axis size ``B``. Non-array
+            leaves (Python scalars, strings, static Module fields) are left alone. Under
+            ``jax.distributed`` each process passes its local slice (``B / process_count`` rows);
+            the result is the global array.
+        devices: the devices to use (default: ``jax.devices()``, all processes).
+        pad: if true and ``B`` is not a multiple of the device count, repeat the last row to the
+            next multiple (slice the result back with ``[:B]``); if false such a ``B`` raises.
+
+    Returns:
+        A pytree of the same structure with ``jax.Array`` leaves sharded along axis 0.
+
+    Raises:
+        ValueError: if leaves disagree on the batch size, a leaf is a scalar, or ``B`` does not
+            divide evenly over the devices and ``pad`` is false.
+    """
+    sharding = batch_sharding(devices)
+    multi = jax.process_count() > 1 and devices is None
+    # rows this process holds must split evenly over the devices it feeds
+    per = jax.local_device_count() if multi else sharding.mesh.size
+    leaves = [x for x in jax.tree_util.tree_leaves(tree) if isinstance(x, (jax.Array, np.ndarray))]
+    if not leaves:
+        return tree
+    sizes = set()
+    for x in leaves:
+        if np.ndim(x) == 0:
+            raise ValueError(f"shard_batch: every array leaf needs a leading batch axis, got a scalar of shape {np.shape(x)}")
+        sizes.add(np.shape(x)[0])
+    if len(sizes) != 1:
+        raise ValueError(f"shard_batch: array leaves disagree on the batch size (leading axis): {sorted(sizes)}")
+    (B,) = sizes
+    if B % per:
+        if not pad:
+            raise ValueError(
+                f"shard_batch: batch size {B} is not a multiple of the {per} devices; pass pad=True "
+                f"or use a batch size divisible by {per}"
+            )
+    B_pad = -(-B // per) * per
+
+    def put(x):
+        if not isinstance(x, (jax.Array, np.ndarray)):
+            return x
+        if B_pad != B:
+            x = jnp.concatenate([jnp.asarray(x), jnp.repeat(jnp.asarray(x)[-1:], B_pad - B, axis=0)], axis=0)
+        if multi:
+            return jax.make_array_from_process_local_data(sharding, np.asarray(x))
+        return jax.device_put(x, sharding)
+
+    return jax.tree_util.tree_map(put, tree)
