@@ -1,0 +1,65 @@
+"""Shared test helpers: small skeletons, random poses, cached jitted functions."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxanim
+from jaxanim import rotations as rot
+from jaxanim.bvh import read_bvh
+
+from .conftest import SHARED_DATA
+
+
+def assert_close(name: str, actual, expected, *, atol: float = 0.0, rtol: float = 0.0) -> None:
+    """``np.testing.assert_allclose`` with the field name in the message."""
+    np.testing.assert_allclose(np.asarray(actual), np.asarray(expected), atol=atol, rtol=rtol, err_msg=f"field: {name}")
+
+
+def small_skeleton(dtype=jnp.float64) -> jaxanim.Skeleton:
+    """A 6-joint tree with a branch, mixed channel layouts and two End Sites."""
+    names = ("root", "spine", "head", "arm", "forearm", "leg")
+    parents = (-1, 0, 1, 1, 3, 0)
+    offsets = np.array(
+        [[0.0, 1.0, 0.0], [0.0, 0.3, 0.1], [0.0, 0.4, 0.0], [0.2, 0.3, 0.0], [0.3, 0.0, 0.05], [0.1, -0.5, 0.0]]
+    )
+    channels = (
+        ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation"),
+        ("Xrotation", "Yrotation", "Zrotation"),
+        ("Yrotation", "Xrotation", "Zrotation"),
+        ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"),
+        ("Zrotation", "Yrotation", "Xrotation"),
+        ("Xrotation", "Zrotation", "Yrotation"),
+    )
+    return jaxanim.Skeleton(
+        names, parents, jnp.asarray(offsets, dtype), channels,
+        end_site_parents=(2, 4), end_site_offsets=jnp.asarray([[0.0, 0.1, 0.0], [0.25, 0.0, 0.0]], dtype),
+    )
+
+
+def random_pose(skeleton: jaxanim.Skeleton, seed: int, n: int | None = None, scale: float = 0.8):
+    """Random unit quaternions and translations (offsets plus noise), optionally batched by ``n``."""
+    rng = np.random.default_rng(seed)
+    shape = (skeleton.num_joints,) if n is None else (n, skeleton.num_joints)
+    dtype = skeleton.offsets.dtype
+    q = rot.rotvec_to_quat(jnp.asarray(rng.normal(size=shape + (3,)) * scale, dtype))
+    t = jnp.asarray(np.asarray(skeleton.offsets) + 0.1 * rng.normal(size=shape + (3,)), dtype)
+    return q, t
+
+
+@functools.lru_cache(maxsize=None)
+def shared_clip(stem: str):
+    """``(skeleton, motion, reference npz)`` for a shared BVH clip (cached: parsed once per run)."""
+    skel, motion = read_bvh(SHARED_DATA / "bvh" / f"{stem}.bvh")
+    ref = dict(np.load(SHARED_DATA / "fk" / f"{stem}.fk.npz"))
+    return skel, motion, ref
+
+
+@functools.lru_cache(maxsize=None)
+def batched_fk():
+    """``jit(vmap(forward_kinematics))`` over frames, shared by every test (compiled per structure)."""
+    return jax.jit(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)))
