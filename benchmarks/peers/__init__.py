@@ -1,0 +1,37 @@
+"""Adapters that run the benchmark problems in other libraries (or plain numpy).
+
+Each adapter imports its library lazily, through :func:`require`, so that a missing peer raises
+:class:`PeerUnavailable` with a readable reason; the benchmark catches it and reports the peer as a
+``skipped: <reason>`` row instead of failing.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+__all__ = ["PeerUnavailable", "require"]
+
+
+class PeerUnavailable(RuntimeError):
+    """A peer library cannot be used here; ``str(exc)`` is the reason shown in the report."""
+
+
+def require(module: str, install_hint: str | None = None) -> ModuleType:
+    """Import ``module`` or raise :class:`PeerUnavailable`.
+
+    Args:
+        module: the importable name, e.g. ``"pinocchio"``.
+        install_hint: what to install, e.g. ``"pip install pin==4.0.0"``; appended to the reason.
+
+    Returns:
+        The imported module.
+
+    Raises:
+        PeerUnavailable: the import failed (any ``ImportError``, including a broken install).
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        hint = f" ({install_hint})" if install_hint else ""
+        raise PeerUnavailable(f"cannot import {module}: {exc}{hint}") from exc

@@ -1,0 +1,168 @@
+"""The benchmark harness: quick-mode reports, skipped peers, and the Pinocchio adapter.
+
+The harness runs here only in its smallest configuration (batches 1 and 8, float64, 3 repeats); the
+timings are not checked, the report's structure and accuracy columns are.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from benchmarks import REGISTRY, BenchConfig
+from benchmarks.__main__ import main
+from benchmarks.report import Row, Table, format_seconds, render_table
+from benchmarks.timing import compile_time, time_call
+
+from .conftest import shared_data_dir
+
+_ATOL_BENCH = 1e-10  # float64 accuracy columns (file units, |p| <= ~30)
+_ATOL_PIN_FK = 1e-10  # Pinocchio adapter vs the shared FK reference
+
+
+def _table_rows(markdown: str, title: str) -> list[list[str]]:
+    """Cells of the data rows of the table in the section ``## <title>``."""
+    section = markdown.split(f"## {title}", 1)[1].split("\n## ", 1)[0]
+    lines = [ln for ln in section.splitlines() if ln.startswith("| ")]
+    return [[c.strip() for c in ln.strip("|").split(" | ")] for ln in lines[1:]]  # drop the header
+
+
+def _row(rows: list[list[str]], impl: str, dtype: str, batch: int) -> list[str]:
+    found = [r for r in rows if r[0] == impl and r[1] == dtype and r[2] == str(batch)]
+    assert len(found) == 1, f"expected one row {impl!r} {dtype} batch {batch}, got {found}; rows: {rows}"
+    return found[0]
+
+
+def _assert_accurate(row: list[str], accuracy_col: int = 6) -> None:
+    acc = row[accuracy_col]
+    if acc != "reference":
+        assert float(acc) < _ATOL_BENCH, f"accuracy of {row[0]} at batch {row[2]}: {acc}"
+
+
+def test_registry_lists_fk_and_jacobian():
+    assert {"fk", "jacobian"} <= set(REGISTRY)
+    assert callable(REGISTRY["fk"].load())
+
+
+def test_unknown_benchmark_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit):
+        main(["no_such_benchmark", "--quick"])
+    assert "registered" in capsys.readouterr().err
+
+
+def test_quick_fk_report_with_missing_peer(tmp_path, monkeypatch):
+    """``fk`` in quick mode: every row present and accurate; Pinocchio reported as skipped."""
+    data = shared_data_dir()
+    monkeypatch.setitem(sys.modules, "pinocchio", None)  # import pinocchio -> ImportError
+    out = tmp_path / "BENCHMARKS.md"
+    status = main(["fk", "--quick", "--dtype", "float64", "--out", str(out), "--data-dir", str(data), "--quiet"])
+    assert status == 0
+    text = out.read_text(encoding="utf-8")
+    for key in ("- command: `python -m benchmarks fk --quick", "- CPU:", "- cores:", "- devices:", "- jax:",
+                "- jaxlib:", "- equinox:", "- numpy:", "- pin (Pinocchio):", "- x64: True", "- date:"):
+        assert key in text, f"header line {key!r} missing"
+    assert "failed:" not in text
+    rows = _table_rows(text, "Forward kinematics")
+    for batch in (1, 8):
+        for impl in ("jaxanim (quaternions)", "jaxanim (matrices)", "naive JAX", "numpy"):
+            row = _row(rows, impl, "float64", batch)
+            _assert_accurate(row)
+            assert float(row[4]) > 0, f"µs/char of {impl}"
+        assert _row(rows, "jaxanim (quaternions)", "float64", batch)[6] == "reference"
+        assert _row(rows, "naive JAX", "float64", batch)[5].endswith("s"), "compile time missing"
+    skipped = [r for r in rows if r[0] == "Pinocchio forwardKinematics"]
+    assert len(skipped) == 1 and skipped[0][3].startswith("skipped: cannot import pinocchio"), skipped
+    assert "vs the shared reference" in text
+
+
+def test_missing_data_skips_the_benchmark(tmp_path):
+    out = tmp_path / "BENCHMARKS.md"
+    assert main(["fk", "--quick", "--out", str(out), "--data-dir", str(tmp_path / "nowhere"), "--quiet"]) == 0
+    text = out.read_text(encoding="utf-8")
+    assert "**skipped:**" in text and "cmu_01_01_trim300.bvh not found" in text
+
+
+def test_quick_jacobian_report(tmp_path):
+    """``jacobian`` at batch 1: jaxanim and (if installed) Pinocchio agree with jacfwd."""
+    data = shared_data_dir()
+    out = tmp_path / "BENCHMARKS.md"
+    status = main([
+        "jacobian", "--quick", "--dtype", "float64", "--batches", "1", "--out", str(out), "--data-dir", str(data),
+        "--only", "jaxanim,jacfwd of jaxanim*,pinocchio", "--quiet",
+    ])
+    assert status == 0
+    text = out.read_text(encoding="utf-8")
+    assert "failed:" not in text
+    rows = _table_rows(text, "Jacobian")
+    _assert_accurate(_row(rows, "jaxanim", "float64", 1))
+    assert _row(rows, "jacfwd of jaxanim FK", "float64", 1)[6] == "reference"
+    assert not [r for r in rows if r[0].startswith("jacrev")], "--only should have filtered jacrev out"
+    try:
+        import pinocchio  # noqa: F401
+    except ImportError:
+        assert any(r[0] == "Pinocchio" and r[3].startswith("skipped:") for r in rows)
+    else:
+        _assert_accurate(_row(rows, "Pinocchio", "float64", 1))
+
+
+def test_pinocchio_model_matches_shared_reference():
+    """The Pinocchio adapter (free flyer + spherical joints, xyzw q) reproduces the shared FK reference."""
+    pytest.importorskip("pinocchio", reason="Pinocchio (pip install pin==4.0.0) is not installed")
+    from benchmarks.peers import pinocchio_peer
+    from jaxanim import read_bvh
+
+    data = shared_data_dir()
+    bvh = data / "bvh" / "cmu_01_01_trim300.bvh"
+    ref_path = data / "fk" / "cmu_01_01_trim300.fk.npz"
+    if not (bvh.is_file() and ref_path.is_file()):
+        pytest.skip(f"{bvh} or {ref_path} missing")
+    skeleton, motion = read_bvh(bvh)
+    ref = np.load(ref_path)
+    frames = [0, 1, 150, 299]
+    model = pinocchio_peer.build_model(skeleton)
+    assert (model.model.nq, model.model.nv) == (7 + 4 * 30, 6 + 3 * 30)
+    rotations, translations = np.asarray(motion.rotations)[frames], np.asarray(motion.translations)[frames]
+    qs = list(pinocchio_peer.configurations(rotations, translations[:, 0]))
+    pj, pe = pinocchio_peer.positions(model, qs)
+    np.testing.assert_allclose(pj, ref["positions"][frames], rtol=0, atol=_ATOL_PIN_FK, err_msg="positions")
+    np.testing.assert_allclose(
+        pe, ref["end_site_positions"][frames], rtol=0, atol=_ATOL_PIN_FK, err_msg="end_site_positions"
+    )
+
+
+def test_time_call_and_compile_time():
+    import jax
+    import jax.numpy as jnp
+
+    x = jnp.arange(4.0)
+    cs = compile_time(jax.jit(lambda v: v * 2.0), x)
+    assert cs.total > 0 and cs.total == pytest.approx(cs.lower + cs.compile)
+    stats = time_call(cs.compiled, x, repeats=3, warmup=1)
+    assert stats.repeats == 3 and stats.number >= 1
+    assert stats.min <= stats.median <= max(stats.all)
+    with pytest.raises(ValueError, match="repeats"):
+        time_call(cs.compiled, x, repeats=0)
+
+
+def test_render_table_ratio_and_skipped_row():
+    table = Table("t", "Demo", rows=[
+        Row("ours", "float64", 10, 1e-3, 9e-4, 10, 0.5, 1e-15),
+        Row("peer", "float64", 10, 4e-3, 4e-3, 10, None, "reference", is_peer=True),
+        Row("missing", skipped="cannot import x", is_peer=True),
+    ])
+    md = render_table(table)
+    rows = _table_rows(md, "Demo")
+    assert rows[0][4] == "100" and rows[0][7] == "0.25×", rows[0]
+    assert rows[1][7] == "1×" and rows[1][5] == "—"
+    assert rows[2][3] == "skipped: cannot import x"
+    assert format_seconds(1.5e-6) == "1.5 µs" and format_seconds(None) == "—"
+
+
+def test_quick_config_is_small():
+    cfg = BenchConfig.make_quick()
+    assert cfg.batches == (1, 8) and cfg.repeats <= 3 and cfg.loop_cap <= 8
+    assert cfg.selects("anything")
+    assert BenchConfig(only=("jaxanim*",)).selects("jaxanim (matrices)")
+    assert not BenchConfig(only=("jaxanim",)).selects("jaxanim (matrices)")
