@@ -102,24 +102,18 @@ def jacobian(
     eye = jnp.eye(3, dtype=dtype)[None]
     Q_par = jnp.concatenate([eye, _take(R_world, [p for p in skeleton.parents[1:]])], axis=0) if J > 1 else eye
 
+    # Everything below is elementwise, so XLA writes the output in one fused pass.
+    m = jnp.asarray(mask, dtype=dtype)  # [S, J]
     r = x[:, None, :] - p_world[None, :, :]  # [S, J, 3] lever arms
-    r = r * jnp.asarray(mask, dtype=dtype)[:, :, None]
-    # -[r]x Q_par : column k is a_k x r with a_k = Q_par e_k
-    zero = jnp.zeros_like(r[..., 0])
-    r_skew = jnp.stack(
-        [
-            jnp.stack([zero, -r[..., 2], r[..., 1]], axis=-1),
-            jnp.stack([r[..., 2], zero, -r[..., 0]], axis=-1),
-            jnp.stack([-r[..., 1], r[..., 0], zero], axis=-1),
-        ],
-        axis=-2,
-    )  # [S, J, 3, 3]
-    lin = -jnp.einsum("sjab,jbc->sjac", r_skew, Q_par)  # [S, J, 3, 3]
-    ang = jnp.asarray(mask, dtype=dtype)[:, :, None, None] * Q_par[None]  # [S, J, 3, 3]
-    rot_block = jnp.concatenate([lin, ang], axis=2)  # [S, J, 6, 3]
-    rot_cols = jnp.transpose(rot_block, (0, 2, 1, 3)).reshape(S, 6, 3 * J)
-    trans_cols = jnp.broadcast_to(jnp.concatenate([eye[0], jnp.zeros((3, 3), dtype)], axis=0), (S, 6, 3))
-    return jnp.concatenate([trans_cols, rot_cols], axis=2)
+    rx, ry, rz = (r[..., i, None] * m[..., None] for i in range(3))  # [S, J, 1]
+    # column c of the linear block is a_c x r with a_c = Q_par[:, :, c]
+    Qx, Qy, Qz = (Q_par[None, :, i, :] for i in range(3))  # [1, J, 3] over c
+    rows = [Qy * rz - Qz * ry, Qz * rx - Qx * rz, Qx * ry - Qy * rx]  # linear x, y, z
+    rows += [Q * m[..., None] for Q in (Qx, Qy, Qz)]  # angular x, y, z
+    rot_cols = jnp.stack(rows, axis=1)  # [S, 6, J, 3]
+    trans = jnp.concatenate([eye[0], jnp.zeros((3, 3), dtype)], axis=0)  # [6, 3]
+    trans_cols = jnp.broadcast_to(trans[None, :, None, :], (S, 6, 1, 3))
+    return jnp.concatenate([trans_cols, rot_cols], axis=2).reshape(S, 6, 3 + 3 * J)
 
 
 def apply_increment(
