@@ -310,6 +310,11 @@ def _demo_save_fk(s: DemoState) -> None:
 def _demo_plot(s: DemoState) -> None:
     frame = s.clip.motion.num_frames // 2
     out = s.out_dir / "demo_pose.png"
+    try:
+        import matplotlib  # noqa: F401  (optional: the plot extra)
+    except ImportError:
+        s.rows.append(("plot", "skipped: matplotlib is not installed (pip install 'jaxanim[plot]')"))
+        return
     _plot(s.clip, frame, out)
     s.rows.append(("plot", f"wrote {out} (frame {frame})"))
 

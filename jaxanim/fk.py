@@ -15,6 +15,7 @@ import functools
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 from . import rotations as rot
 from ._errors import JaxanimError, check_shape
@@ -69,16 +70,35 @@ def _plan(parents: tuple[int, ...]) -> _Plan:
 
 
 def _take(x, idx):
-    """``x[idx]`` along axis 0 for a static index list, as slices + one concatenate (no gather)."""
-    idx = list(idx)
-    parts, i = [], 0
+    """``x[idx]`` along axis 0 for a static index list, without a gather.
+
+    ``x`` is cut once with ``lax.split`` at every boundary of the runs of consecutive indices, and
+    the pieces are concatenated in the order asked for. Both ops transpose to each other, so the
+    reverse-mode derivative is one concatenate and one split too (plain slices would transpose to
+    one full-size pad per run).
+    """
+    idx = [int(i) for i in idx]
+    n = x.shape[0]
+    runs, i = [], 0
     while i < len(idx):
         k = i
         while k + 1 < len(idx) and idx[k + 1] == idx[k] + 1:
             k += 1
-        parts.append(x[idx[i] : idx[k] + 1])
+        runs.append((idx[i], idx[k] + 1))
         i = k + 1
-    return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=0)
+    if len(runs) == 1:
+        a, b = runs[0]
+        return x if (a, b) == (0, n) else lax.slice_in_dim(x, a, b, axis=0)
+    cuts = sorted({0, n} | {a for a, _ in runs} | {b for _, b in runs})
+    pieces = lax.split(x, [b - a for a, b in zip(cuts[:-1], cuts[1:])], axis=0)
+    start_of = {a: k for k, a in enumerate(cuts[:-1])}
+    parts = []
+    for a, b in runs:
+        k = start_of[a]
+        while cuts[k] < b:
+            parts.append(pieces[k])
+            k += 1
+    return jnp.concatenate(parts, axis=0)
 
 
 def _local_matrices(name: str, rotations, num_joints: int):
