@@ -4,3 +4,12 @@ This package knows nothing of skeletons and never imports ``jaxanim``.
 """
 
 from ._sharding import batch_mesh as batch_mesh, batch_sharding as batch_sharding, shard_batch as shard_batch
+from ._results import RESULTS as RESULTS, Solution as Solution
+from .least_squares import (
+    AbstractLeastSquaresSolver as AbstractLeastSquaresSolver,
+    GaussNewton as GaussNewton,
+    JaxoptSolver as JaxoptSolver,
+    LevenbergMarquardt as LevenbergMarquardt,
+    OptimistixSolver as OptimistixSolver,
+    least_squares as least_squares,
+)
