@@ -1,0 +1,369 @@
+"""Inverse kinematics on a :class:`~jaxanim.Skeleton` as a nonlinear least-squares problem.
+
+The course notes' objective (``SEEDS.md`` §1.F)::
+
+    F(theta) = 1/2 sum_i w_i |f_i(theta) - x_i|^2 + 1/2 lambda sum_j w_j |delta_j|^2
+
+is solved by :func:`solvers.least_squares` (Gauss-Newton or Levenberg-Marquardt, own or backend
+solvers) with the analytic Jacobian of :func:`jaxanim.jacobian`.
+
+Variables. The pose is written in exponential coordinates around a reference pose ``R_ref``
+(by default the initial pose): ``R_j = exp(delta_j) R_ref_j`` with ``delta_j`` a rotation vector
+in joint ``j``'s parent frame, plus the root translation ``t_0 = t_ref_0 + d``. The regulariser
+``sqrt(lambda w_j) delta_j`` pulls towards the reference. The Jacobian of these coordinates is the
+geometric Jacobian times the left Jacobian of SO(3), ``J_l(delta_j)``, so it is exact and
+Gauss-Newton converges quadratically.
+
+What moves:
+    * ``root_translation="fixed"`` removes ``d``;
+    * ``frozen`` joints keep their reference rotations (their columns are removed);
+    * ``pin`` names a joint or End Site that stays where the reference pose puts it: the root
+      translation is then not a variable but follows from the rotations so that the pinned site
+      does not move (exactly, not by a penalty), which makes the pinned site the root of the
+      IK chain (the notes' "put the root at the foot").
+
+Orientation targets use the residual ``log(R_site R_target^T)`` (world frame rotation vector) with
+its exact Jacobian ``J_l^{-1}(e)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import solvers
+
+from . import rotations as rot
+from ._errors import JaxanimError, check_shape
+from ._types import Array, Float
+from .fk import forward_kinematics
+from .jacobians import _site_indices, jacobian
+from .skeleton import Skeleton
+
+
+class Target(eqx.Module):
+    """One IK target: a position and/or an orientation for a joint or End Site.
+
+    Leading axes on ``position`` / ``orientation`` / ``weight`` are allowed for batches (per frame,
+    per character), to be mapped over with ``jax.vmap``; :func:`solve_ik` takes one.
+
+    Attributes:
+        site: joint name or End Site name (``<joint>_End``). Static.
+        position: ``[3]`` world position (file units), or ``None``.
+        orientation: ``[4]`` wxyz world orientation of the site's frame, or ``None``.
+        weight: scalar weight ``w`` of this target's squared error (array: sweepable by vmap).
+    """
+
+    site: str = eqx.field(static=True)
+    position: Float[Array, "3"] | None
+    orientation: Float[Array, "4"] | None
+    weight: Float[Array, ""]
+
+    def __init__(self, site: str, position=None, orientation=None, weight=1.0):
+        if position is None and orientation is None:
+            raise JaxanimError(f"targets: the target for {site!r} has neither a position nor an orientation")
+        self.site = str(site)
+        if position is not None:
+            check_shape(f"targets[{site!r}].position", position, (3,), batch=True)
+            position = jnp.asarray(position)
+        if orientation is not None:
+            check_shape(f"targets[{site!r}].orientation", orientation, (4,), batch=True)
+            orientation = jnp.asarray(orientation)
+        self.position = position
+        self.orientation = orientation
+        self.weight = jnp.asarray(weight)
+
+
+class IKSolution(eqx.Module):
+    """Result of :func:`solve_ik`.
+
+    Attributes:
+        rotations: ``[joints, 4]`` local wxyz quaternions of the solved pose.
+        translations: ``[joints, 3]`` local translations (the root's may have moved).
+        result: :class:`solvers.RESULTS`, per element under ``vmap``.
+        stats: the solver's statistics (``num_steps``, ``cost``, ...).
+        position_errors: ``[targets]`` distance to each position target (0 where none).
+        orientation_errors: ``[targets]`` angle to each orientation target, radians (0 where none).
+        success: scalar bool: the solver converged **and** every target is met within the
+            tolerances of :func:`solve_ik`. An unreachable target gives ``False`` with ``result``
+            successful: the pose is then the least-squares-closest one the solver found.
+    """
+
+    rotations: Float[Array, "joints 4"]
+    translations: Float[Array, "joints 3"]
+    result: solvers.RESULTS
+    stats: dict
+    position_errors: Float[Array, " targets"]
+    orientation_errors: Float[Array, " targets"]
+    success: Array
+
+
+def _left_jacobian(phi):
+    """SO(3) left Jacobian ``J_l(phi)`` ``[..., 3, 3]`` with a Taylor branch at 0."""
+    th2 = jnp.sum(phi * phi, axis=-1)
+    small = th2 < 1e-8
+    th2s = jnp.where(small, 1.0, th2)
+    th = jnp.sqrt(th2s)
+    a = jnp.where(small, 0.5 - th2 / 24.0, (1.0 - jnp.cos(th)) / th2s)
+    b = jnp.where(small, 1.0 / 6.0 - th2 / 120.0, (th - jnp.sin(th)) / (th2s * th))
+    K = rot.skew(phi)
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), K.shape)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def _left_jacobian_inverse(phi):
+    """``J_l(phi)^{-1}`` ``[..., 3, 3]``, with a Taylor branch at 0 (valid for |phi| < 2 pi)."""
+    th2 = jnp.sum(phi * phi, axis=-1)
+    small = th2 < 1e-8
+    th2s = jnp.where(small, 1.0, th2)
+    th = jnp.sqrt(th2s)
+    c = jnp.where(small, 1.0 / 12.0 + th2 / 720.0, (1.0 / th2s) - (1.0 + jnp.cos(th)) / (2.0 * th * jnp.sin(th)))
+    K = rot.skew(phi)
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), K.shape)
+    return eye - 0.5 * K + c[..., None, None] * (K @ K)
+
+
+class _Layout(eqx.Module):
+    """Static bookkeeping of one IK problem: which columns are variables, which sites are targets."""
+
+    site_idx: tuple[int, ...] = eqx.field(static=True)
+    has_pos: tuple[bool, ...] = eqx.field(static=True)
+    has_ori: tuple[bool, ...] = eqx.field(static=True)
+    free_joints: tuple[int, ...] = eqx.field(static=True)
+    free_root: bool = eqx.field(static=True)
+    pin_idx: int | None = eqx.field(static=True)
+
+
+def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation) -> _Layout:
+    if isinstance(targets, Target):
+        targets = (targets,)
+    if not isinstance(targets, Sequence) or not targets or not all(isinstance(t, Target) for t in targets):
+        raise JaxanimError("targets: expected a non-empty sequence of jaxanim.ik.Target")
+    if root_translation not in ("free", "fixed"):
+        raise JaxanimError(f"root_translation: expected 'free' or 'fixed', got {root_translation!r}")
+    site_idx = _site_indices(skeleton, [t.site for t in targets])
+    for t in targets:  # one problem: no leading axes (vmap over them instead)
+        if t.position is not None:
+            check_shape(f"targets[{t.site!r}].position", t.position, (3,))
+        if t.orientation is not None:
+            check_shape(f"targets[{t.site!r}].orientation", t.orientation, (4,))
+        check_shape(f"targets[{t.site!r}].weight", t.weight, ())
+    frozen_idx = {skeleton.index(n) for n in frozen}
+    pin_idx = None if pin is None else skeleton.site_index(pin)
+    free_joints = tuple(j for j in range(skeleton.num_joints) if j not in frozen_idx)
+    free_root = root_translation == "free" and pin is None
+    if not free_joints and not free_root:
+        raise JaxanimError("frozen: every joint is frozen and the root translation is fixed: nothing can move")
+    return _Layout(
+        site_idx, tuple(t.position is not None for t in targets), tuple(t.orientation is not None for t in targets),
+        free_joints, free_root, pin_idx,
+    )
+
+
+def _pose(skeleton, layout, q_ref, t_ref, y):
+    """Pose from the variables ``y``: rotations ``exp(delta) R_ref``, the root translation."""
+    J = skeleton.num_joints
+    nfree = len(layout.free_joints)
+    off = 3 if layout.free_root else 0
+    delta = jnp.zeros((J, 3), y.dtype).at[jnp.asarray(layout.free_joints)].set(y[off : off + 3 * nfree].reshape(nfree, 3))
+    q = rot.quat_multiply(rot.rotvec_to_quat(delta), q_ref)
+    t = t_ref
+    if layout.free_root:
+        t = t.at[0].add(y[:3])
+    return q, t, delta
+
+
+def _site_rotations(skeleton, out, site_idx):
+    J = skeleton.num_joints
+    owner = [s if s < J else skeleton.end_site_parents[s - J] for s in site_idx]
+    return out.rotations[jnp.asarray(owner)]
+
+
+def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w):
+    """Residual vector and its exact Jacobian w.r.t. ``y``."""
+    q, t, delta = _pose(skeleton, layout, q_ref, t_ref, y)
+    out = forward_kinematics(skeleton, q, t)
+    sites = layout.site_idx + ((layout.pin_idx,) if layout.pin_idx is not None else ())
+    G = jacobian(skeleton, q, t, sites)  # [S(+1), 6, 3 + 3J]
+    J = skeleton.num_joints
+    # columns w.r.t. the variables: root translation and J_l(delta_j) for the free joints
+    Jl = _left_jacobian(delta[jnp.asarray(layout.free_joints)])  # [nfree, 3, 3]
+    cols = jnp.concatenate([3 + 3 * j + jnp.arange(3) for j in layout.free_joints]) if layout.free_joints else jnp.zeros((0,), jnp.int32)
+    Grot = G[..., cols].reshape(G.shape[0], 6, len(layout.free_joints), 3)
+    Grot = jnp.einsum("sakc,kcd->sakd", Grot, Jl).reshape(G.shape[0], 6, 3 * len(layout.free_joints))
+    pos_all = out.site_positions()
+    if layout.pin_idx is not None:
+        # translate the body so the pinned site stays at pin_ref: every position moves by shift,
+        # and every linear Jacobian row loses the pinned site's
+        shift = pin_ref - pos_all[layout.pin_idx]
+        Grot = Grot.at[:-1, :3].add(-Grot[-1:, :3])
+        Grot = Grot[:-1]
+        t = t.at[0].add(shift)
+    else:
+        shift = jnp.zeros(3, y.dtype)
+    if layout.free_root:
+        Gcols = jnp.concatenate([G[: len(layout.site_idx), :, :3], Grot], axis=2)
+    else:
+        Gcols = Grot
+    R_sites = _site_rotations(skeleton, out, layout.site_idx)
+    res, rows = [], []
+    for i, tgt in enumerate(targets):
+        sw = jnp.sqrt(jnp.asarray(tgt.weight, y.dtype))
+        if tgt.position is not None:
+            p = pos_all[layout.site_idx[i]] + shift
+            res.append(sw * (p - tgt.position.astype(y.dtype)))
+            rows.append(sw * Gcols[i, :3])
+        if tgt.orientation is not None:
+            R_t = rot.quat_to_matrix(tgt.orientation.astype(y.dtype))
+            e = rot.matrix_to_rotvec(R_sites[i] @ R_t.T)
+            res.append(sw * e)
+            rows.append(sw * (_left_jacobian_inverse(e) @ Gcols[i, 3:]))
+    # regulariser towards the reference pose, per free joint
+    n = y.shape[0]
+    off = 3 if layout.free_root else 0
+    w_rows = jnp.repeat(reg_w[jnp.asarray(layout.free_joints)], 3) if layout.free_joints else jnp.zeros((0,), y.dtype)
+    res.append(jnp.sqrt(w_rows) * y[off:])
+    rows.append(jnp.concatenate([jnp.zeros((w_rows.shape[0], off), y.dtype), jnp.diag(jnp.sqrt(w_rows))], axis=1))
+    return jnp.concatenate(res), jnp.concatenate(rows, axis=0).reshape(-1, n), (q, t)
+
+
+def solve_ik(
+    skeleton: Skeleton,
+    targets: Sequence[Target] | Target,
+    rotations: Float[Array, "joints 4"],
+    translations: Float[Array, "joints 3"] | None = None,
+    *,
+    reference: tuple[Float[Array, "joints 4"], Float[Array, "joints 3"]] | None = None,
+    pin: str | None = None,
+    frozen: Sequence[str] = (),
+    root_translation: str = "free",
+    regularization: float | Float[Array, ""] = 1e-6,
+    joint_weights: Float[Array, " joints"] | None = None,
+    solver=None,
+    position_tolerance: float | None = None,
+    orientation_tolerance: float = 1e-4,
+    throw: bool = False,
+) -> IKSolution:
+    """Solve one IK problem; batch with ``jax.vmap`` over characters or frames.
+
+    Args:
+        skeleton: the tree.
+        targets: :class:`Target` s (positions and/or orientations of joints / End Sites).
+        rotations: ``[joints, 4]`` initial local wxyz quaternions (e.g. a clip frame).
+        translations: ``[joints, 3]`` initial local translations (``None``: the offsets).
+        reference: ``(rotations, translations)`` of the pose the regulariser pulls towards and the
+            pin and frozen joints refer to (default: the initial pose).
+        pin: a joint or End Site that stays exactly where the reference pose puts it.
+        frozen: joint names that keep their reference rotations.
+        root_translation: ``"free"`` or ``"fixed"`` (ignored when ``pin`` is given: it follows).
+        regularization: ``lambda`` of the regulariser ``lambda/2 sum_j w_j |delta_j|^2``.
+        joint_weights: ``[joints]`` per-joint stiffness ``w_j`` against moving (default ones).
+        solver: a :mod:`solvers` least-squares solver (default ``LevenbergMarquardt()``).
+        position_tolerance: distance (file units) within which a position target counts as met
+            for ``success``; default ``1e-4`` times the skeleton's size (sum of |offsets|).
+        orientation_tolerance: angle (radians) within which an orientation target counts as met.
+        throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
+
+    Returns:
+        :class:`IKSolution`.
+    """
+    J = skeleton.num_joints
+    layout = _layout(skeleton, targets, pin, frozen, root_translation)
+    targets = (targets,) if isinstance(targets, Target) else tuple(targets)
+    check_shape("rotations", rotations, (J, 4), what=f"(joints, 4) = ({J}, 4)")
+    q0 = jnp.asarray(rotations)
+    dtype = q0.dtype
+    t0 = skeleton.offsets.astype(dtype) if translations is None else jnp.asarray(translations, dtype)
+    check_shape("translations", t0, (J, 3), what=f"(joints, 3) = ({J}, 3)")
+    if reference is None:
+        q_ref, t_ref = q0, t0
+    else:
+        q_ref, t_ref = reference
+        check_shape("reference[0]", q_ref, (J, 4), what=f"(joints, 4) = ({J}, 4)")
+        check_shape("reference[1]", t_ref, (J, 3), what=f"(joints, 3) = ({J}, 3)")
+        q_ref, t_ref = jnp.asarray(q_ref, dtype), jnp.asarray(t_ref, dtype)
+    w = jnp.ones(J, dtype) if joint_weights is None else jnp.asarray(joint_weights, dtype)
+    check_shape("joint_weights", w, (J,), what=f"(joints,) = ({J},)")
+    reg_w = jnp.asarray(regularization, dtype) * w
+    pin_ref = None
+    if layout.pin_idx is not None:
+        pin_ref = forward_kinematics(skeleton, q_ref, t_ref).site_positions()[layout.pin_idx]
+    # initial variables: the initial pose in coordinates around the reference
+    nfree = len(layout.free_joints)
+    d0 = rot.quat_to_rotvec(rot.quat_multiply(q0, rot.quat_conjugate(q_ref)))[jnp.asarray(layout.free_joints)]
+    parts = ([t0[0] - t_ref[0]] if layout.free_root else []) + [d0.reshape(3 * nfree)]
+    y0 = jnp.concatenate(parts)
+
+    def fn(y, args):
+        return _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w)[0]
+
+    def jac(y, args):
+        return _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w)[1]
+
+    solver = solvers.LevenbergMarquardt() if solver is None else solver
+    sol = solvers.least_squares(fn, solver, y0, None, jac=jac, throw=throw)
+    _, _, (q, t) = _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, sol.value, reg_w)
+    out = forward_kinematics(skeleton, q, t)
+    pos_all = out.site_positions()
+    R_sites = _site_rotations(skeleton, out, layout.site_idx)
+    pe, oe = [], []
+    for i, tgt in enumerate(targets):
+        pe.append(jnp.linalg.norm(pos_all[layout.site_idx[i]] - tgt.position) if tgt.position is not None else jnp.zeros((), dtype))
+        oe.append(rot.quat_distance(rot.matrix_to_quat(R_sites[i]), tgt.orientation.astype(dtype)) if tgt.orientation is not None else jnp.zeros((), dtype))
+    pe, oe = jnp.stack(pe), jnp.stack(oe)
+    if position_tolerance is None:
+        position_tolerance = 1e-4 * float(np.abs(np.asarray(skeleton.offsets)).sum())
+    success = (sol.result == solvers.RESULTS.successful) & jnp.all(pe <= position_tolerance) & jnp.all(oe <= orientation_tolerance)
+    return IKSolution(rot.quat_canonical(q), t, sol.result, sol.stats, pe, oe, success)
+
+
+def solve_ik_clip(
+    skeleton: Skeleton,
+    motion,
+    targets: Sequence[Target] | Target,
+    **kwargs,
+):
+    """Solve IK on every frame of a clip at once (``vmap`` over frames).
+
+    Each frame starts from, and is regularised towards, the clip's own pose of that frame; a
+    ``pin`` stays where the clip puts it in every frame.
+
+    Args:
+        skeleton: the tree.
+        motion: the clip (:class:`~jaxanim.Motion`).
+        targets: :class:`Target` s whose ``position`` is ``[3]`` (the same every frame) or
+            ``[frames, 3]``, and ``orientation`` ``[4]`` or ``[frames, 4]``.
+        **kwargs: as :func:`solve_ik` (``pin``, ``frozen``, ``root_translation``, ``solver``, ...).
+
+    Returns:
+        ``(edited Motion, IKSolution)`` where the solution's fields have a leading frames axis.
+    """
+    from .skeleton import Motion
+
+    motion.check_skeleton(skeleton, "motion")
+    F = motion.num_frames
+    targets = (targets,) if isinstance(targets, Target) else tuple(targets)
+
+    def per_frame(x, n):
+        if x is None:
+            return None
+        x = jnp.asarray(x)
+        if x.ndim == 1:
+            return jnp.broadcast_to(x, (F, n))
+        check_shape("targets position/orientation", x, (F, n), what=f"({n},) or (frames, {n}) = ({F}, {n})")
+        return x
+
+    stacked = tuple(
+        Target(tg.site, per_frame(tg.position, 3), per_frame(tg.orientation, 4), jnp.broadcast_to(tg.weight, (F,)))
+        for tg in targets
+    )
+
+    def one(tg, q, t):
+        return solve_ik(skeleton, tg, q, t, **kwargs)
+
+    sol = jax.vmap(one)(stacked, motion.rotations, motion.translations)
+    return Motion(sol.rotations, sol.translations, motion.frame_time), sol

@@ -1,0 +1,234 @@
+"""Inverse kinematics: exact Jacobian of the IK coordinates, reachable targets, pins, frozen joints."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxanim
+import solvers
+from jaxanim import ik
+from jaxanim import rotations as rot
+
+from .conftest import shared_data_dir
+from .helpers import assert_close, random_pose, shared_clip, small_skeleton
+
+_TOL_REACH = 1e-6
+
+
+def _problem_fns(skel, targets, q, t, **kw):
+    layout = ik._layout(skel, targets, kw.get("pin"), kw.get("frozen", ()), kw.get("root_translation", "free"))
+    pin_ref = None
+    if layout.pin_idx is not None:
+        pin_ref = jaxanim.forward_kinematics(skel, q, t).site_positions()[layout.pin_idx]
+    reg_w = jnp.full(skel.num_joints, 1e-3)
+
+    def both(y):
+        return ik._residual_and_jacobian(skel, layout, tuple(targets), q, t, pin_ref, y, reg_w)
+
+    n = (3 if layout.free_root else 0) + 3 * len(layout.free_joints)
+    return both, n
+
+
+@pytest.mark.parametrize("kw", [{}, {"pin": "leg"}, {"frozen": ("arm",), "root_translation": "fixed"}])
+def test_ik_jacobian_is_exact(kw):
+    skel = small_skeleton()
+    q, t = random_pose(skel, 0)
+    q2, t2 = random_pose(skel, 1)
+    goal = jaxanim.forward_kinematics(skel, q2, t2)
+    targets = (
+        ik.Target("forearm_End", goal.end_site_positions[1], rot.matrix_to_quat(goal.rotations[4]), 2.0),
+        ik.Target("head_End", position=goal.end_site_positions[0]),
+    )
+    both, n = _problem_fns(skel, targets, q, t, **kw)
+    y = jnp.asarray(np.random.default_rng(3).normal(size=n) * 0.3)
+    r, Jac, _ = jax.jit(both)(y)
+    auto = jax.jit(jax.jacfwd(lambda z: both(z)[0]))(y)
+    assert_close("jacobian", Jac, auto, atol=1e-10)
+
+
+@functools.lru_cache(maxsize=None)
+def _cmu():
+    skel, motion, _ = shared_clip("cmu_01_01_trim300")
+    return skel, motion
+
+
+EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "Head_End")
+
+
+def _random_targets(skel, seed):
+    """Targets from FK of a random pose within +-45 deg of the rest pose, root rotated freely."""
+    rng = np.random.default_rng(seed)
+    eul = rng.uniform(-np.pi / 4, np.pi / 4, size=(skel.num_joints, 3))
+    q = rot.euler_to_quat(jnp.asarray(eul), "ZYX")
+    q = q.at[0].set(rot.rotvec_to_quat(jnp.asarray(rng.normal(size=3))))
+    t = skel.offsets.at[0].set(jnp.asarray(rng.normal(size=3) * 5))
+    out = jaxanim.forward_kinematics(skel, q, t)
+    pos = out.site_positions()
+    tg = []
+    for name in EFFECTORS:
+        i = skel.site_index(name)
+        owner = i if i < skel.num_joints else skel.end_site_parents[i - skel.num_joints]
+        tg.append(ik.Target(name, pos[i], rot.matrix_to_quat(out.rotations[owner])))
+    return tuple(tg)
+
+
+def test_reachable_targets_on_cmu_skeleton():
+    shared_data_dir()
+    skel, _ = _cmu()
+    targets = _random_targets(skel, 0)
+    q0 = skel.rest_rotations()
+    sol = ik.solve_ik(skel, targets, q0, None, regularization=0.0, solver=solvers.LevenbergMarquardt(max_steps=200))
+    assert sol.result == solvers.RESULTS.successful, solvers.RESULTS[sol.result]
+    assert float(jnp.max(sol.position_errors)) < _TOL_REACH
+    assert float(jnp.max(sol.orientation_errors)) < _TOL_REACH
+
+
+def test_pin_frozen_and_vmap_equals_loop():
+    skel = small_skeleton()
+    q, t = random_pose(skel, 4)
+    base = jaxanim.forward_kinematics(skel, q, t)
+    goals = [jaxanim.forward_kinematics(skel, *random_pose(skel, s)).end_site_positions[1] for s in (5, 6, 7)]
+
+    def solve(goal):
+        return ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, pin="head_End", frozen=("leg",))
+
+    batched = jax.vmap(solve)(jnp.stack(goals))
+    for i, g in enumerate(goals):
+        one = solve(g)
+        # same problem, same solver: equal up to the solver tolerance (fusion changes the rounding)
+        assert_close("rotations", batched.rotations[i], one.rotations, atol=1e-8)
+        out = jaxanim.forward_kinematics(skel, one.rotations, one.translations)
+        assert_close("pinned head_End", out.end_site_positions[0], base.end_site_positions[0], atol=1e-9)
+        assert_close("frozen leg", jnp.abs(jnp.sum(one.rotations[5] * q[5])), 1.0, atol=1e-12)
+
+
+def test_bad_input():
+    skel = small_skeleton()
+    q, t = random_pose(skel, 8)
+    with pytest.raises(jaxanim.JaxanimError, match="unknown joint or End Site 'hand'; valid:"):
+        ik.solve_ik(skel, ik.Target("hand", jnp.zeros(3)), q, t)
+    with pytest.raises(jaxanim.JaxanimError, match=r"targets\['leg'\].position: expected shape \(\.\.\., 3\), got \(2,\)"):
+        ik.Target("leg", jnp.zeros(2))
+    with pytest.raises(jaxanim.JaxanimError, match="unknown joint 'tail'"):
+        ik.solve_ik(skel, ik.Target("leg", jnp.zeros(3)), q, t, frozen=("tail",))
+    with pytest.raises(jaxanim.JaxanimError, match="root_translation: expected 'free' or 'fixed'"):
+        ik.solve_ik(skel, ik.Target("leg", jnp.zeros(3)), q, t, root_translation="loose")
+
+
+def _height(skel):
+    out = jaxanim.forward_kinematics(skel, skel.rest_rotations())
+    p = np.asarray(out.site_positions())
+    return float(p[:, 1].max() - p[:, 1].min())
+
+
+def test_games105_single_frame_tasks():
+    """Fixed root; left toe pinned; both hands with the left toe pinned (CMU skeleton, its units)."""
+    shared_data_dir()
+    skel, motion = _cmu()
+    h = _height(skel)
+    q, t = motion.rotations[100], motion.translations[100]
+    out = jaxanim.forward_kinematics(skel, q, t)
+    lh = out.positions[skel.index("LeftHand")]
+    rh = out.positions[skel.index("RightHand")]
+    goal_l = lh + jnp.asarray([0.1, 0.05, 0.1]) * h
+    goal_r = rh + jnp.asarray([-0.05, 0.1, 0.05]) * h
+    cases = [
+        dict(targets=(ik.Target("LeftHand", goal_l),), root_translation="fixed", frozen=("Hips",)),
+        dict(targets=(ik.Target("LeftHand", goal_l),), pin="LeftToeBase_End"),
+        dict(targets=(ik.Target("LeftHand", goal_l), ik.Target("RightHand", goal_r)), pin="LeftToeBase_End"),
+    ]
+    toe = out.end_site_positions[skel.end_site_names.index("LeftToeBase_End")]
+    for case in cases:
+        targets = case.pop("targets")
+        sol = ik.solve_ik(skel, targets, q, t, **case)
+        assert float(jnp.max(sol.position_errors)) < 0.01 * h, (case, sol.position_errors)
+        res = jaxanim.forward_kinematics(skel, sol.rotations, sol.translations)
+        if "pin" in case:
+            assert_close("pinned toe", res.end_site_positions[skel.end_site_names.index("LeftToeBase_End")], toe, atol=1e-9 * h)
+        else:
+            assert_close("fixed root", res.positions[0], out.positions[0], atol=1e-12 * h)
+
+
+def test_games105_wrist_holding_over_the_clip():
+    """Keep the left wrist at a fixed offset in the root's heading frame, at a fixed height."""
+    shared_data_dir()
+    skel, motion = _cmu()
+    h = _height(skel)
+    fk = jax.jit(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)))
+    out = fk(skel, motion.rotations, motion.translations)
+    R_root = out.rotations[:, 0]
+    fwd = R_root[:, :, 2] * jnp.asarray([[1.0, 0.0, 1.0]])  # root z axis projected on the ground (Y up)
+    fwd = fwd / jnp.linalg.norm(fwd, axis=-1, keepdims=True)
+    side = jnp.cross(jnp.broadcast_to(jnp.asarray([0.0, 1.0, 0.0]), fwd.shape), fwd)
+    goal = out.positions[:, 0] + 0.25 * h * side + 0.2 * h * fwd
+    goal = goal.at[:, 1].set(0.55 * h + float(np.asarray(out.positions[:, 0, 1]).min() - 0.5 * h))
+    edited, sol = ik.solve_ik_clip(skel, motion, ik.Target("LeftHand", goal))
+    assert edited.num_frames == motion.num_frames
+    assert bool(jnp.all(jnp.isfinite(edited.rotations)))
+    err = float(jnp.max(sol.position_errors))
+    assert err < 0.01 * h, err
+
+
+def test_ik_matches_scipy_least_squares():
+    """The same IK residual minimised by scipy (an independent solver) gives the same optimum."""
+    from scipy.optimize import least_squares as scipy_ls
+
+    skel = small_skeleton()
+    q, t = random_pose(skel, 9)
+    base = jaxanim.forward_kinematics(skel, q, t).end_site_positions
+    far = jaxanim.forward_kinematics(skel, *random_pose(skel, 10)).end_site_positions
+    cases = {
+        # near the start: both solvers end in the same basin
+        "near": (ik.Target("forearm_End", base[1] + 0.05), ik.Target("head_End", base[0] - 0.03, weight=0.5)),
+    }
+    for name, targets in cases.items():
+        both, n = _problem_fns(skel, targets, q, t)
+        f = jax.jit(lambda y, both=both: both(y)[0])
+        jf = jax.jit(lambda y, both=both: both(y)[1])
+        sol = ik.solve_ik(skel, targets, q, t, regularization=1e-3, solver=solvers.LevenbergMarquardt(max_steps=300))
+        assert bool(jnp.all(jnp.isfinite(sol.rotations))), name
+        y_ours = jnp.concatenate([
+            sol.translations[0] - t[0],
+            rot.quat_to_rotvec(rot.quat_multiply(sol.rotations, rot.quat_conjugate(q))).reshape(-1),
+        ])
+        ref = scipy_ls(lambda y: np.asarray(f(jnp.asarray(y))), np.zeros(n), jac=lambda y: np.asarray(jf(jnp.asarray(y))),
+                       method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        assert_close(f"{name}: cost", sol.stats["cost"], 0.5 * np.sum(ref.fun**2), rtol=1e-8)
+        assert_close(f"{name}: pose", y_ours, ref.x, atol=1e-6)
+
+
+def test_unreachable_target_gives_the_closest_pose_and_no_success():
+    """Arm and forearm only, root fixed: the closest pose stretches the chain towards the target,
+    at distance |target - shoulder| - (L1 + L2) (analytic)."""
+    skel = small_skeleton()
+    q, t = random_pose(skel, 11, scale=0.3)
+    out = jaxanim.forward_kinematics(skel, q, t)
+    shoulder = out.positions[skel.index("arm")]
+    L = float(jnp.linalg.norm(t[4]) + jnp.linalg.norm(skel.end_site_offsets[1]))  # forearm bone as posed
+    goal = shoulder + jnp.asarray([3.0, 1.0, -0.5])
+    frozen = tuple(n for n in skel.names if n not in ("arm", "forearm"))
+    sol = ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, frozen=frozen, root_translation="fixed",
+                      regularization=0.0, solver=solvers.LevenbergMarquardt(max_steps=1000))
+    # a large-residual problem: Gauss-Newton type methods converge only linearly here
+    assert bool(jnp.all(jnp.isfinite(sol.rotations)))
+    assert not bool(sol.success)
+    expect = float(jnp.linalg.norm(goal - shoulder)) - L
+    assert_close("distance to the unreachable target", sol.position_errors[0], expect, atol=1e-6)
+    # a reachable one succeeds
+    near = out.end_site_positions[1] + 0.01
+    ok = ik.solve_ik(skel, ik.Target("forearm_End", near), q, t, frozen=frozen, root_translation="fixed")
+    assert bool(ok.success), (solvers.RESULTS[ok.result], ok.position_errors)
+
+
+def test_nan_target_gives_no_nan_pose():
+    skel = small_skeleton()
+    q, t = random_pose(skel, 12)
+    sol = ik.solve_ik(skel, ik.Target("forearm_End", jnp.asarray([jnp.nan, 0.0, 0.0])), q, t)
+    assert sol.result == solvers.RESULTS.nonfinite
+    assert not bool(sol.success)
+    assert bool(jnp.all(jnp.isfinite(sol.rotations))) and bool(jnp.all(jnp.isfinite(sol.translations)))
