@@ -33,9 +33,19 @@ per-iteration predicate). Both modes give the same iterates.
 Convergence (checked after every iteration, on the step ``s`` that would be taken next, its
 predicted decrease ``pred = -(g^T s + 0.5 |J s|^2)`` and the projected gradient)::
 
-    (all |s_i| <= atol + rtol |y_i|  and  pred <= atol + rtol * cost)   or   |g_free|_inf <= atol
+    (all |s_i| <= atol + rtol |y_i|  and  pred <= atol + rtol * cost  and  lambda <= tr(J D^-1 J^T))
+    or   |g_free|_inf <= atol
 
 with ``rtol`` floored at ``4 eps`` of the dtype so that float32 can meet the default tolerances.
+Because the test looks at the *next* step, the returned value is about one step, ``~rtol |y|``,
+from the minimum (a test on the last step taken, as in optimistix, costs one more iteration). The
+damping condition stops a step that is short only because ``lambda`` is huge (after many rejected
+trials) from passing as convergence. When no acceptable step exists (Gauss-Newton's line search
+fails, or Levenberg-Marquardt rejects a step at the largest ``lambda``) the solve stops: as
+``successful`` if the model predicts no decrease above the tolerance (converged to working
+precision, the usual end in float32), ``nonfinite`` if the last trial point was not finite, and
+``singular`` otherwise. Cost decreases are computed as ``0.5 (r_new - r).(r_new + r)``, free of
+the cancellation in ``F_new - F``, so nonzero-residual problems converge to full precision.
 The solvers are pure functions of their inputs: ``least_squares`` is ``eqx.filter_jit``-ed and can
 be ``jax.vmap``-ed over ``y0``, ``args``, ``bounds`` and the solvers' array fields.
 """
@@ -276,7 +286,9 @@ def _model(
     # trust the step test only while lambda is below the total curvature sum_i (J^T J)_ii / D_ii.
     trusted = lam <= curvature
     converged = (step_ok & trusted & small_step & small_pred) | (g_norm <= atol)
-    return dict(r=r, J=J, g=g, cost=cost, g_norm=g_norm, p=p, y_trial=y_trial, pred=pred, step_ok=step_ok, converged=converged)
+    return dict(
+        r=r, J=J, g=g, cost=cost, g_norm=g_norm, p=p, y_trial=y_trial, pred=pred, step_ok=step_ok, converged=converged
+    )
 
 
 def _tolerances(solver, dtype) -> tuple[Float[Array, ""], Float[Array, ""]]:
@@ -313,11 +325,15 @@ class AbstractLeastSquaresSolver(eqx.Module):
         """Linearise at ``y`` (already inside the box) and prepare the first step."""
 
     @abc.abstractmethod
-    def step(self, problem: _Problem, y: Float[Array, " n"], args: PyTree, state: _State) -> tuple[Float[Array, " n"], _State]:
+    def step(
+        self, problem: _Problem, y: Float[Array, " n"], args: PyTree, state: _State
+    ) -> tuple[Float[Array, " n"], _State]:
         """One iteration: returns the next iterate (possibly ``y`` itself) and state."""
 
     @abc.abstractmethod
-    def terminate(self, problem: _Problem, y: Float[Array, " n"], args: PyTree, state: _State) -> tuple[Bool[Array, ""], RESULTS]:
+    def terminate(
+        self, problem: _Problem, y: Float[Array, " n"], args: PyTree, state: _State
+    ) -> tuple[Bool[Array, ""], RESULTS]:
         """``(stop, result)`` at ``y``; ``result`` only matters when ``stop``."""
 
     @abc.abstractmethod
@@ -482,7 +498,9 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     fixed_steps: bool = eqx.field(default=False, static=True)
     lambda0: Float[Array, ""] = eqx.field(default=1e-3, converter=jnp.asarray)
     scaling: bool = eqx.field(default=False, static=True)
-    weights: Float[Array, " n"] | None = eqx.field(default=None, converter=lambda w: None if w is None else jnp.asarray(w))
+    weights: Float[Array, " n"] | None = eqx.field(
+        default=None, converter=lambda w: None if w is None else jnp.asarray(w)
+    )
 
     def __check_init__(self):
         _check_int("max_steps", self.max_steps, 1)
@@ -684,7 +702,9 @@ class OptimistixSolver(_AbstractAdapter):
     ``singular``). Statistics: ``step_norm`` is the step optimistix would try next, ``damping``
     is ``1 / trust-region step size`` for ``optx.LevenbergMarquardt`` (0 otherwise), and
     ``cost_history`` holds the initial cost then the final cost (intermediate costs are not
-    reported by optimistix). Bounds are not supported.
+    reported by optimistix). Bounds are not supported. Known limitation of optimistix 0.1.0:
+    with ``jax_enable_x64`` on, ``optx.LevenbergMarquardt`` and ``optx.Dogleg`` fail to trace for a
+    float32 ``y0`` (a float64 damping term meets float32 residuals); float32 works with x64 off.
 
     Attributes:
         solver: the optimistix solver instance.
@@ -737,7 +757,9 @@ class OptimistixSolver(_AbstractAdapter):
             step_size = getattr(getattr(sol.state, "search_state", None), "step_size", None)
             if step_size is not None:
                 damping = 1 / step_size
-        return _adapter_solution(problem, y0, args, sol.value, result, sol.stats["num_steps"], step, damping, self.max_steps)
+        return _adapter_solution(
+            problem, y0, args, sol.value, result, sol.stats["num_steps"], step, damping, self.max_steps
+        )
 
 
 def _import_jaxopt():
@@ -813,7 +835,9 @@ class JaxoptSolver(_AbstractAdapter):
         converged = state.error <= (self.atol if self.name == "LevenbergMarquardt" else self.rtol)
         result = RESULTS.where(converged, RESULTS.successful, RESULTS.max_steps_reached)
         damping = state.damping_factor if self.name == "LevenbergMarquardt" else jnp.zeros((), y0.dtype)
-        return _adapter_solution(problem, y0, args, params, result, state.iter_num, state.delta, damping, self.max_steps)
+        return _adapter_solution(
+            problem, y0, args, params, result, state.iter_num, state.delta, damping, self.max_steps
+        )
 
 
 # --------------------------------------------------------------------------------------------
@@ -841,7 +865,9 @@ def least_squares(
     Solves one problem; batch with ``jax.vmap`` over ``y0``, ``args``, ``bounds`` or the solver's
     array fields (``fn`` and ``jac`` are closed-over callables). With ``throw=False`` (the default)
     every element keeps its own ``result`` and one failing element never aborts a batch; check
-    ``sol.result == RESULTS.successful``.
+    ``sol.result == RESULTS.successful``. The solve is compiled once per ``fn``/``jac`` object,
+    shapes and static solver settings: pass the same function objects (not fresh lambdas) to reuse
+    it; array data belong in ``args``.
 
     Args:
         fn: the residual function ``fn(y, args) -> r``, ``y`` of shape ``[n]``, ``r`` of shape ``[m]``.
@@ -872,7 +898,8 @@ def least_squares(
     """
     if not isinstance(solver, (AbstractLeastSquaresSolver, _AbstractAdapter)):
         raise ValueError(
-            f"solver: expected GaussNewton, LevenbergMarquardt, OptimistixSolver or JaxoptSolver, got {type(solver).__name__}"
+            "solver: expected GaussNewton, LevenbergMarquardt, OptimistixSolver or JaxoptSolver, "
+            f"got {type(solver).__name__}"
         )
     y0 = jnp.asarray(y0)
     if jnp.issubdtype(y0.dtype, jnp.complexfloating):
@@ -892,7 +919,9 @@ def least_squares(
                 f"bounds: not supported by {type(solver).__name__}; use GaussNewton or LevenbergMarquardt"
             )
         if not (isinstance(bounds, (tuple, list)) and len(bounds) == 2):
-            raise ValueError(f"bounds: expected a pair (lower, upper) of shape (n,) = ({n},), got {type(bounds).__name__}")
+            raise ValueError(
+                f"bounds: expected a pair (lower, upper) of shape (n,) = ({n},), got {type(bounds).__name__}"
+            )
         lower, upper = (jnp.asarray(b, y0.dtype) for b in bounds)
         for name, b in (("lower", lower), ("upper", upper)):
             if b.shape not in ((), (n,)):
