@@ -367,3 +367,70 @@ def solve_ik_clip(
 
     sol = jax.vmap(one)(stacked, motion.rotations, motion.translations)
     return Motion(sol.rotations, sol.translations, motion.frame_time), sol
+
+
+def targets_from_json(skeleton: Skeleton, data, num_frames: int):
+    """Parse the ``TARGETS.json`` of ``jaxanim ik`` into targets and :func:`solve_ik` options.
+
+    Format::
+
+        {"pin": NAME or null, "root_translation": "free" | "fixed", "frozen": [NAME, ...],
+         "targets": [{"joint": NAME, "position": [x, y, z] or one [x, y, z] per frame,
+                      "orientation": [w, x, y, z] or one per frame (optional), "weight": number}],
+         "regularization": number (optional)}
+
+    NAME is a joint or an End Site (``<joint>_End``); positions are world coordinates in the file's
+    units.
+
+    Returns:
+        ``(targets, kwargs)`` for :func:`solve_ik_clip`.
+
+    Raises:
+        JaxanimError: naming the offending field.
+    """
+    if not isinstance(data, dict):
+        raise JaxanimError("TARGETS.json: expected a JSON object at the top level")
+    unknown = set(data) - {"pin", "root_translation", "frozen", "targets", "regularization"}
+    if unknown:
+        raise JaxanimError(f"TARGETS.json: unknown fields {sorted(unknown)}")
+    items = data.get("targets")
+    if not isinstance(items, list) or not items:
+        raise JaxanimError("TARGETS.json: 'targets' must be a non-empty list")
+    targets = []
+    for k, item in enumerate(items):
+        where = f"TARGETS.json: targets[{k}]"
+        if not isinstance(item, dict) or "joint" not in item:
+            raise JaxanimError(f"{where}: expected an object with a 'joint' field")
+        name = item["joint"]
+        skeleton.site_index(name)  # raises, listing the valid names
+
+        def field(key, n, name=name, where=where, item=item):
+            if item.get(key) is None:
+                return None
+            try:
+                x = np.asarray(item[key], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise JaxanimError(f"{where}.{key}: expected numbers") from None
+            if x.shape not in ((n,), (num_frames, n)):
+                raise JaxanimError(
+                    f"{where}.{key}: expected shape ({n},) or (frames, {n}) = ({num_frames}, {n}), got {x.shape}"
+                )
+            return x
+
+        weight = item.get("weight", 1.0)
+        if not isinstance(weight, (int, float)) or weight < 0:
+            raise JaxanimError(f"{where}.weight: expected a non-negative number, got {weight!r}")
+        targets.append(Target(name, field("position", 3), field("orientation", 4), float(weight)))
+    kwargs = {}
+    if data.get("pin") is not None:
+        skeleton.site_index(data["pin"])
+        kwargs["pin"] = data["pin"]
+    if "root_translation" in data:
+        kwargs["root_translation"] = data["root_translation"]
+    frozen = data.get("frozen", [])
+    if not isinstance(frozen, list):
+        raise JaxanimError("TARGETS.json: 'frozen' must be a list of joint names")
+    kwargs["frozen"] = tuple(frozen)
+    if "regularization" in data:
+        kwargs["regularization"] = float(data["regularization"])
+    return tuple(targets), kwargs

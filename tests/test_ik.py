@@ -232,3 +232,32 @@ def test_nan_target_gives_no_nan_pose():
     assert sol.result == solvers.RESULTS.nonfinite
     assert not bool(sol.success)
     assert bool(jnp.all(jnp.isfinite(sol.rotations))) and bool(jnp.all(jnp.isfinite(sol.translations)))
+
+
+def test_cli_ik_writes_edited_bvh(tmp_path):
+    """`jaxanim ik FILE --targets TARGETS.json --out OUT.bvh` on a short clip of the shipped walk."""
+    import json
+
+    from jaxanim.cli import main
+
+    skel, m = jaxanim.read_bvh(jaxanim.default_clip_path())
+    short = jaxanim.Motion(m.rotations[:8], m.translations[:8], m.frame_time)
+    src = tmp_path / "walk8.bvh"
+    jaxanim.write_bvh(src, skel, short)
+    fk = jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0))
+    hand = np.asarray(fk(skel, short.rotations, short.translations).positions[:, skel.index("LeftHand")])
+    goal = hand + np.array([0.05, 0.1, 0.0])
+    spec = {"pin": "LeftToeBase_End", "frozen": ["RightUpLeg"],
+            "targets": [{"joint": "LeftHand", "position": goal.tolist(), "weight": 1.0}]}
+    (tmp_path / "t.json").write_text(json.dumps(spec))
+    out = tmp_path / "out.bvh"
+    assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "t.json"), "--out", str(out)]) == 0
+    skel2, edited = jaxanim.read_bvh(out)
+    assert skel2.names == skel.names and skel2.channels == skel.channels
+    got = np.asarray(fk(skel2, edited.rotations, edited.translations).positions[:, skel.index("LeftHand")])
+    assert float(np.abs(got - goal).max()) < 1e-4  # file precision (6 decimals) bounds it
+    # bad input: a clear error and exit code 2
+    (tmp_path / "bad.json").write_text(json.dumps({"targets": [{"joint": "Tail", "position": [0, 0, 0]}]}))
+    assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "bad.json"), "--out", str(out)]) == 2
+    (tmp_path / "bad2.json").write_text(json.dumps({"targets": [{"joint": "LeftHand", "position": [0, 0]}]}))
+    assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "bad2.json"), "--out", str(out)]) == 2
