@@ -41,8 +41,8 @@ from . import rotations as rot
 from ._errors import JaxanimError, check_shape
 from ._types import Array, Float
 from .fk import forward_kinematics
-from .jacobians import _site_indices, jacobian
-from .skeleton import Skeleton
+from .jacobians import _jacobian_from_fk, _site_indices
+from .skeleton import Motion, Skeleton
 
 
 class Target(eqx.Module):
@@ -184,15 +184,14 @@ def _site_rotations(skeleton, out, site_idx):
 
 
 def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w):
-    """Residual vector and its exact Jacobian w.r.t. ``y``."""
+    """Residual vector and its exact Jacobian w.r.t. ``y`` (one FK pass serves both)."""
     q, t, delta = _pose(skeleton, layout, q_ref, t_ref, y)
     out = forward_kinematics(skeleton, q, t)
     sites = layout.site_idx + ((layout.pin_idx,) if layout.pin_idx is not None else ())
-    G = jacobian(skeleton, q, t, sites)  # [S(+1), 6, 3 + 3J]
-    J = skeleton.num_joints
+    G = _jacobian_from_fk(skeleton, out.rotations, out.positions, out.end_site_positions, sites)  # [S(+1), 6, 3+3J]
     # columns w.r.t. the variables: root translation and J_l(delta_j) for the free joints
     Jl = _left_jacobian(delta[jnp.asarray(layout.free_joints)])  # [nfree, 3, 3]
-    cols = jnp.concatenate([3 + 3 * j + jnp.arange(3) for j in layout.free_joints]) if layout.free_joints else jnp.zeros((0,), jnp.int32)
+    cols = np.asarray([3 + 3 * j + k for j in layout.free_joints for k in range(3)], dtype=np.int32)
     Grot = G[..., cols].reshape(G.shape[0], 6, len(layout.free_joints), 3)
     Grot = jnp.einsum("sakc,kcd->sakd", Grot, Jl).reshape(G.shape[0], 6, 3 * len(layout.free_joints))
     pos_all = out.site_positions()
@@ -306,8 +305,11 @@ def solve_ik(
 
     solver = solvers.LevenbergMarquardt() if solver is None else solver
     sol = solvers.least_squares(fn, solver, y0, None, jac=jac, throw=throw)
-    _, _, (q, t) = _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, sol.value, reg_w)
+    q, t, _ = _pose(skeleton, layout, q_ref, t_ref, sol.value)
     out = forward_kinematics(skeleton, q, t)
+    if layout.pin_idx is not None:  # the root translation follows the pin (see _residual_and_jacobian)
+        t = t.at[0].add(pin_ref - out.site_positions()[layout.pin_idx])
+        out = forward_kinematics(skeleton, q, t)
     pos_all = out.site_positions()
     R_sites = _site_rotations(skeleton, out, layout.site_idx)
     pe, oe = [], []
@@ -342,8 +344,6 @@ def solve_ik_clip(
     Returns:
         ``(edited Motion, IKSolution)`` where the solution's fields have a leading frames axis.
     """
-    from .skeleton import Motion
-
     motion.check_skeleton(skeleton, "motion")
     F = motion.num_frames
     targets = (targets,) if isinstance(targets, Target) else tuple(targets)

@@ -86,6 +86,12 @@ def jacobian(
     site_idx = _site_indices(skeleton, sites)
     R_local, t_local = _prepare(skeleton, rotations, translations)
     R_world, p_world = _fk_levels(skeleton.parents, R_local, t_local)
+    return _jacobian_from_fk(skeleton, R_world, p_world, None, site_idx)
+
+
+def _jacobian_from_fk(skeleton: Skeleton, R_world, p_world, end_site_positions, site_idx: tuple[int, ...]):
+    """:func:`jacobian` from global transforms already computed (``end_site_positions`` may be
+    ``None``: computed here if a site needs it). For callers that also need FK (IK)."""
     J = skeleton.num_joints
     S = len(site_idx)
     dtype = R_world.dtype
@@ -93,7 +99,9 @@ def jacobian(
 
     # site positions: joints directly, End Sites through their joint
     if any(s >= J for s in site_idx):
-        p_sites_all = jnp.concatenate([p_world, _end_sites(skeleton, R_world, p_world)], axis=0)
+        if end_site_positions is None:
+            end_site_positions = _end_sites(skeleton, R_world, p_world)
+        p_sites_all = jnp.concatenate([p_world, end_site_positions], axis=0)
     else:
         p_sites_all = p_world
     x = _take(p_sites_all, site_idx)  # [S, 3]
