@@ -8,6 +8,7 @@ from ._results import RESULTS as RESULTS, Solution as Solution
 from .least_squares import (
     AbstractLeastSquaresSolver as AbstractLeastSquaresSolver,
     GaussNewton as GaussNewton,
+    GradientDescent as GradientDescent,
     JaxoptSolver as JaxoptSolver,
     LevenbergMarquardt as LevenbergMarquardt,
     OptimistixSolver as OptimistixSolver,

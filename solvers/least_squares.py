@@ -1,4 +1,4 @@
-r"""Nonlinear least squares: Gauss-Newton and Levenberg-Marquardt, plus optimistix/jaxopt adapters.
+r"""Nonlinear least squares: Gauss-Newton, Levenberg-Marquardt, gradient descent; optimistix/jaxopt adapters.
 
 Every solver minimises
 
@@ -17,7 +17,9 @@ Jacobian is short and fat (``m < n``) the same step is computed in residual spac
 ``p = -D^{-1} J^T (J D^{-1} J^T + lambda I)^{-1} r`` (the course notes' eq. 4.8, generalised to a
 diagonal ``D`` by the push-through identity): an ``m x m`` Cholesky factorisation instead of
 ``n x n``. For Gauss-Newton that is the minimum-norm step. The choice is made statically from the
-shapes.
+shapes. :class:`GradientDescent` (the course notes' Jacobian-transpose method, a slow baseline)
+steps along ``-g`` instead, by Buss's step length ``|g|^2 / |J g|^2``: the minimiser of the same
+model along ``-g`` (the Cauchy step); no linear system is solved.
 
 Bounds are handled by projection with an active set (projected Newton, Bertsekas 1982): a
 variable at a bound whose gradient pushes outwards is frozen for the step (its row and column of
@@ -40,7 +42,9 @@ with ``rtol`` floored at ``4 eps`` of the dtype so that float32 can meet the def
 Because the test looks at the *next* step, the returned value is about one step, ``~rtol |y|``,
 from the minimum (a test on the last step taken, as in optimistix, costs one more iteration). The
 damping condition stops a step that is short only because ``lambda`` is huge (after many rejected
-trials) from passing as convergence. When no acceptable step exists (Gauss-Newton's line search
+trials) from passing as convergence. For :class:`GradientDescent` ``s`` is the (projected)
+gradient step and there is no damping condition; its docstring says what that implies for the
+accuracy. When no acceptable step exists (the line search of Gauss-Newton or gradient descent
 fails, or Levenberg-Marquardt rejects a step at the largest ``lambda``) the solve stops: as
 ``successful`` if the model predicts no decrease above the tolerance (converged to working
 precision, the usual end in float32), ``nonfinite`` if the last trial point was not finite, and
@@ -69,6 +73,7 @@ from ._results import RESULTS, Solution
 __all__ = [
     "AbstractLeastSquaresSolver",
     "GaussNewton",
+    "GradientDescent",
     "JaxoptSolver",
     "LevenbergMarquardt",
     "OptimistixSolver",
@@ -214,6 +219,24 @@ def _solve_normal(
     return -jsl.cho_solve((jnp.linalg.cholesky(A), True), g), jnp.sum(curvature)
 
 
+def _cauchy_step(
+    J: Float[Array, "m n"], g: Float[Array, " n"], g_norm: Float[Array, ""]
+) -> Float[Array, " n"]:
+    r"""Buss's Jacobian-transpose step ``p = -alpha g``, ``alpha = |g|^2 / |J g|^2``.
+
+    ``g`` is the gradient with frozen variables already zeroed and ``g_norm = |g|_inf``. ``alpha``
+    minimises the model ``g^T s + 0.5 |J s|^2`` along ``s = -alpha g`` (the Cauchy step). It does
+    not depend on the scale of ``g``, so it is computed from ``g / |g|_inf``, which cannot overflow.
+    The step is 0 when ``g = 0``, and non-finite only when ``J g`` underflows while ``g`` does not.
+    """
+    positive = g_norm > 0
+    d = g / jnp.where(positive, g_norm, 1)
+    Jd = J @ d
+    JdJd = Jd @ Jd
+    alpha = (d @ d) / jnp.where(positive, JdJd, 1)
+    return jnp.where(positive, -alpha * g, 0)
+
+
 def _cost_change(r: Float[Array, " m"], r_new: Float[Array, " m"]) -> Float[Array, ""]:
     """``F(y_new) - F(y) = 0.5 (r_new - r) . (r_new + r)``, without the cancellation of ``F_new - F``."""
     return 0.5 * ((r_new - r) @ (r_new + r))
@@ -227,7 +250,7 @@ def _all_finite(*xs: Array) -> Bool[Array, ""]:
 
 
 class _State(eqx.Module):
-    """Solver state at the iterate ``y`` (shared by Gauss-Newton and Levenberg-Marquardt)."""
+    """Solver state at the iterate ``y`` (shared by all the own solvers)."""
 
     # linearisation at y
     r: Float[Array, " m"]
@@ -240,7 +263,7 @@ class _State(eqx.Module):
     y_trial: Float[Array, " n"]  # clip(y + p)
     pred: Float[Array, ""]  # model decrease of y_trial - y
     step_ok: Bool[Array, ""]  # p is finite
-    # damping (Levenberg-Marquardt; zeros for Gauss-Newton)
+    # damping (Levenberg-Marquardt; zeros for Gauss-Newton and gradient descent)
     lam: Float[Array, ""]
     nu: Float[Array, ""]
     lam_scale: Float[Array, ""]  # max_i (J^T J)_ii / D_i at y0: lambda lives in [eps, 1/eps] * lam_scale
@@ -262,14 +285,23 @@ def _model(
     short_fat: bool,
     rtol: Float[Array, ""],
     atol: Float[Array, ""],
+    *,
+    steepest: bool = False,
 ) -> dict[str, Array]:
-    """Gradient, pending step, predicted decrease and the convergence test at ``y``."""
+    """Gradient, pending step, predicted decrease and the convergence test at ``y``.
+
+    The step solves the (damped) normal equations, or with ``steepest`` (static; ``lam`` must be
+    0) is the Cauchy step :func:`_cauchy_step`, for which the damping condition is void.
+    """
     g = J.T @ r
     cost = 0.5 * (r @ r)
     free = problem.free(y, g)
     g_free = g if free is None else jnp.where(free, g, 0)
     g_norm = jnp.max(jnp.abs(g_free))
-    p, curvature = _solve_normal(J, r, g, lam, diag, free, short_fat)
+    if steepest:
+        p = _cauchy_step(J, g_free, g_norm)
+    else:
+        p, curvature = _solve_normal(J, r, g, lam, diag, free, short_fat)
     step_ok = _all_finite(p)
     p = jnp.where(step_ok, p, 0)
     y_trial = problem.project(y + p)
@@ -277,14 +309,15 @@ def _model(
     if problem.bounded:  # the projected step: evaluate the model
         Js = J @ s
         pred = -(g @ s) - 0.5 * (Js @ Js)
-    else:  # (J^T J + lam D) p = -g gives |J p|^2 = -g.p - lam p.D.p: no pass over J
+    else:  # (J^T J + lam D) p = -g gives |J p|^2 = -g.p - lam p.D.p: no pass over J (for the
+        # Cauchy step p = -alpha g, lam = 0: |J p|^2 = alpha^2 |J g|^2 = alpha |g|^2 = -g.p as well)
         pDp = p @ p if diag is None else (p * diag) @ p
         pred = 0.5 * (lam * pDp - g @ p)
     small_step = jnp.all(jnp.abs(s) <= atol + rtol * jnp.abs(y))
     small_pred = pred <= atol + rtol * cost
     # A heavily damped step is short because of the damping, not because y is near a minimum:
     # trust the step test only while lambda is below the total curvature sum_i (J^T J)_ii / D_ii.
-    trusted = lam <= curvature
+    trusted = jnp.array(True) if steepest else lam <= curvature
     converged = (step_ok & trusted & small_step & small_pred) | (g_norm <= atol)
     return dict(
         r=r, J=J, g=g, cost=cost, g_norm=g_norm, p=p, y_trial=y_trial, pred=pred, step_ok=step_ok, converged=converged
@@ -372,6 +405,80 @@ def _stats(state: _State) -> dict[str, Array]:
     )
 
 
+def _line_search_state(problem, y, r, J, short_fat, rtol, atol, *, steepest, **status) -> _State:
+    """The undamped state at ``y`` of the line-search solvers (Gauss-Newton and gradient descent)."""
+    zero = jnp.zeros((), y.dtype)
+    model = _model(problem, y, r, J, zero, None, short_fat, rtol, atol, steepest=steepest)
+    return _State(**model, lam=zero, nu=zero, lam_scale=zero, diag=None, **status)
+
+
+def _line_search_init(solver, problem, y, args, *, steepest: bool) -> _State:
+    r, J = problem.linearise(y, args)
+    m, n = J.shape
+    rtol, atol = _tolerances(solver, y.dtype)
+    no = jnp.array(False)
+    return _line_search_state(
+        problem, y, r, J, m < n, rtol, atol,
+        steepest=steepest, stalled=no, stall_nonfinite=no, step_norm=jnp.zeros((), y.dtype),
+    )
+
+
+def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tuple[Float[Array, " n"], _State]:
+    """One backtracking (Armijo) line search along the pending step ``state.p``, then the new state.
+
+    Tries ``clip(y + alpha p)`` for ``alpha = 1, 1/2, ..., 2^-max_backtracks`` until
+    ``F(y + s) <= F(y) + c1 min(g^T s, 0)``; a non-finite trial point fails the test. When none
+    passes (or ``p`` is not finite) ``y`` is kept and the state is marked stalled.
+
+    With ``steepest`` (static) a trial point also passes Hager and Zhang's approximate Armijo test
+    (2005, eq. 23), ``g_s^T s <= (2 c1 - 1) g^T s < 0`` with ``g_s`` the gradient at ``y + s``,
+    when the cost change is below ``sqrt(eps) F(y)`` in magnitude. It is the Armijo test with
+    ``F(y + s) - F(y)`` replaced by the trapezoid rule ``(g + g_s)^T s / 2`` (exact for a linear
+    residual), computed from gradients, which are accurate where cost differences are rounding
+    noise: without it a linearly convergent method stalls about ``sqrt(eps)`` from a minimum with
+    a nonzero residual. Gauss-Newton's step jumps past that region and does not need it.
+    """
+    rtol, atol = _tolerances(solver, y.dtype)
+    m, n = state.J.shape
+
+    def trial(alpha):
+        y_t = problem.project(y + alpha * state.p)
+        r_t, J_t = problem.linearise(y_t, args)
+        finite = _all_finite(r_t, J_t)
+        slope = jnp.minimum(state.g @ (y_t - y), 0)
+        dF = _cost_change(state.r, r_t)
+        ok = finite & (dF <= _ARMIJO_C1 * slope)
+        if steepest:
+            flat = jnp.abs(dF) <= jnp.sqrt(jnp.finfo(y.dtype).eps) * state.cost
+            slope_t = (r_t @ J_t) @ (y_t - y)
+            ok = ok | (finite & flat & (slope < 0) & (slope_t <= (2 * _ARMIJO_C1 - 1) * slope))
+        return y_t, r_t, J_t, ok, finite
+
+    # alpha = 1, 1/2, ..., 2^-max_backtracks; the first trial runs inside the loop too, so
+    # that fn and its Jacobian are traced (and compiled) once.
+    def cond(c):
+        k, _, (_, _, _, ok, _) = c
+        return jnp.invert(ok) & (k <= solver.max_backtracks)
+
+    def body(c):
+        k, alpha, _ = c
+        return k + 1, 0.5 * alpha, trial(alpha)
+
+    no = jnp.array(False)
+    init = (jnp.array(0), jnp.ones((), y.dtype), (y, state.r, state.J, no, no))
+    _, _, (y_t, r_t, J_t, ok, finite) = jax.lax.while_loop(cond, body, init)
+    accept = ok & state.step_ok
+    y_new = jnp.where(accept, y_t, y)
+    r = jnp.where(accept, r_t, state.r)
+    J = jnp.where(accept, J_t, state.J)
+    new_state = _line_search_state(
+        problem, y_new, r, J, m < n, rtol, atol,
+        steepest=steepest, stalled=jnp.invert(accept), stall_nonfinite=jnp.invert(finite),
+        step_norm=jnp.max(jnp.abs(y_t - y)),
+    )
+    return y_new, new_state
+
+
 class GaussNewton(AbstractLeastSquaresSolver):
     r"""Gauss-Newton with a backtracking (Armijo) line search.
 
@@ -403,55 +510,11 @@ class GaussNewton(AbstractLeastSquaresSolver):
         _check_int("max_steps", self.max_steps, 1)
         _check_int("max_backtracks", self.max_backtracks, 0)
 
-    def _update(self, problem, y, r, J, short_fat, rtol, atol, **status) -> _State:
-        zero = jnp.zeros((), y.dtype)
-        model = _model(problem, y, r, J, zero, None, short_fat, rtol, atol)
-        return _State(**model, lam=zero, nu=zero, lam_scale=zero, diag=None, **status)
-
     def init(self, problem, y, args):
-        r, J = problem.linearise(y, args)
-        m, n = J.shape
-        rtol, atol = _tolerances(self, y.dtype)
-        no = jnp.array(False)
-        return self._update(
-            problem, y, r, J, m < n, rtol, atol, stalled=no, stall_nonfinite=no, step_norm=jnp.zeros((), y.dtype)
-        )
+        return _line_search_init(self, problem, y, args, steepest=False)
 
     def step(self, problem, y, args, state):
-        rtol, atol = _tolerances(self, y.dtype)
-        m, n = state.J.shape
-
-        def trial(alpha):
-            y_t = problem.project(y + alpha * state.p)
-            r_t, J_t = problem.linearise(y_t, args)
-            finite = _all_finite(r_t, J_t)
-            slope = jnp.minimum(state.g @ (y_t - y), 0)
-            ok = finite & (_cost_change(state.r, r_t) <= _ARMIJO_C1 * slope)
-            return y_t, r_t, J_t, ok, finite
-
-        # alpha = 1, 1/2, ..., 2^-max_backtracks; the first trial runs inside the loop too, so
-        # that fn and its Jacobian are traced (and compiled) once.
-        def cond(c):
-            k, _, (_, _, _, ok, _) = c
-            return jnp.invert(ok) & (k <= self.max_backtracks)
-
-        def body(c):
-            k, alpha, _ = c
-            return k + 1, 0.5 * alpha, trial(alpha)
-
-        no = jnp.array(False)
-        init = (jnp.array(0), jnp.ones((), y.dtype), (y, state.r, state.J, no, no))
-        _, _, (y_t, r_t, J_t, ok, finite) = jax.lax.while_loop(cond, body, init)
-        accept = ok & state.step_ok
-        y_new = jnp.where(accept, y_t, y)
-        r = jnp.where(accept, r_t, state.r)
-        J = jnp.where(accept, J_t, state.J)
-        new_state = self._update(
-            problem, y_new, r, J, m < n, rtol, atol,
-            stalled=jnp.invert(accept), stall_nonfinite=jnp.invert(finite),
-            step_norm=jnp.max(jnp.abs(y_t - y)),
-        )
-        return y_new, new_state
+        return _line_search_step(self, problem, y, args, state, steepest=False)
 
     def terminate(self, problem, y, args, state):
         rtol, atol = _tolerances(self, y.dtype)
@@ -570,6 +633,79 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     def terminate(self, problem, y, args, state):
         rtol, atol = _tolerances(self, y.dtype)
         return _terminate(state, rtol, atol, singular_stops=False)
+
+    def postprocess(self, problem, y, args, state, result):
+        return y, _stats(state)
+
+
+class GradientDescent(AbstractLeastSquaresSolver):
+    r"""Gradient descent (the Jacobian-transpose method) with Buss's step length: a baseline.
+
+    Each iteration steps along the negative projected gradient ``-g``, ``g = J^T r`` (variables at
+    an active bound whose gradient pushes outwards are held fixed), with Buss's step length
+    ``alpha = |g|^2 / |J g|^2``, the exact minimiser of the Gauss-Newton model
+    ``F + g^T s + 0.5 |J s|^2`` along ``-g`` (the Cauchy step; Buss 2004, *Introduction to inverse
+    kinematics with Jacobian transpose, pseudoinverse and damped least squares methods*). The
+    trial point ``y + alpha p`` is clipped into the box and accepted by the same backtracking
+    (Armijo) line search as :class:`GaussNewton`: ``alpha`` is halved up to ``max_backtracks``
+    times until ``F(y + s) <= F(y) + c1 g^T s`` (``c1 = 1e-4``), or, where the cost change is
+    below ``sqrt(eps) F(y)`` and so mostly rounding, until the same test holds with the cost
+    change estimated from the gradients at both ends (Hager and Zhang's approximate Armijo test;
+    see :func:`_line_search_step`). Without it, the last linearly convergent steps towards a
+    minimum with a nonzero residual cannot be told from rounding noise and the solve stalls
+    ``~sqrt(eps)`` from it; with it, ``cost_history`` may rise by a few ulps near the end.
+
+    A first-order method: it needs no linear solve, but converges only linearly, at a rate set by
+    the condition number ``kappa`` of ``J^T J`` (about ``((kappa - 1) / (kappa + 1))^2`` per
+    iteration on a linear problem), and takes thousands of iterations on a badly conditioned or
+    curved problem such as Rosenbrock. It is meant as the course notes' baseline to compare
+    :class:`GaussNewton` and :class:`LevenbergMarquardt` against, not for production solves.
+
+    Convergence is tested after every iteration on the pending projected step
+    ``s = clip(y - alpha g) - y`` and its predicted decrease ``pred = -(g^T s + 0.5 |J s|^2)``
+    (``= 0.5 alpha |g|^2`` without bounds)::
+
+        (all |s_i| <= atol + rtol |y_i|  and  pred <= atol + rtol * cost)  or  |g_free|_inf <= atol
+
+    (``rtol`` floored at ``4 eps`` of the dtype). This is the Gauss-Newton test of the module
+    docstring with the gradient step in place of the Gauss-Newton step and without the damping
+    condition.
+    Because the gradient step underestimates the distance to the minimum by up to ``kappa``,
+    the returned value is within about ``kappa rtol |y|`` of the minimum (not ``rtol |y|``):
+    tighten ``rtol`` accordingly. When no trial point passes the line search the solve stops as
+    ``successful`` if ``pred <= atol + rtol * cost`` (working precision), ``nonfinite`` if the last
+    trial point was not finite, and ``singular`` otherwise; ``singular`` also when ``alpha``
+    overflows (``J g`` underflows to zero). The statistic ``damping`` is 0 (there is no damping;
+    the step length is not reported).
+
+    Attributes:
+        rtol: relative tolerance of the convergence test (array; sweepable under ``vmap``).
+        atol: absolute tolerance of the convergence test (array).
+        max_steps: the most iterations (static). Each iteration is one line search.
+        fixed_steps: if true, run exactly ``max_steps`` iterations in a ``lax.scan`` (see
+            :class:`GaussNewton`).
+        max_backtracks: the most step halvings per line search (static).
+    """
+
+    rtol: Float[Array, ""] = eqx.field(default=1e-8, converter=jnp.asarray)
+    atol: Float[Array, ""] = eqx.field(default=1e-10, converter=jnp.asarray)
+    max_steps: int = eqx.field(default=1000, static=True)
+    fixed_steps: bool = eqx.field(default=False, static=True)
+    max_backtracks: int = eqx.field(default=8, static=True)
+
+    def __check_init__(self):
+        _check_int("max_steps", self.max_steps, 1)
+        _check_int("max_backtracks", self.max_backtracks, 0)
+
+    def init(self, problem, y, args):
+        return _line_search_init(self, problem, y, args, steepest=True)
+
+    def step(self, problem, y, args, state):
+        return _line_search_step(self, problem, y, args, state, steepest=True)
+
+    def terminate(self, problem, y, args, state):
+        rtol, atol = _tolerances(self, y.dtype)
+        return _terminate(state, rtol, atol, singular_stops=True)
 
     def postprocess(self, problem, y, args, state, result):
         return y, _stats(state)
@@ -871,8 +1007,8 @@ def least_squares(
 
     Args:
         fn: the residual function ``fn(y, args) -> r``, ``y`` of shape ``[n]``, ``r`` of shape ``[m]``.
-        solver: :class:`GaussNewton`, :class:`LevenbergMarquardt`, :class:`OptimistixSolver` or
-            :class:`JaxoptSolver`.
+        solver: :class:`GaussNewton`, :class:`LevenbergMarquardt`, :class:`GradientDescent`,
+            :class:`OptimistixSolver` or :class:`JaxoptSolver`.
         y0: ``[n]`` the initial guess (integer input is converted to the default float dtype;
             the solve runs in ``y0``'s dtype). It is clipped into the box first.
         args: any pytree passed through to ``fn`` and ``jac``.
@@ -898,7 +1034,7 @@ def least_squares(
     """
     if not isinstance(solver, (AbstractLeastSquaresSolver, _AbstractAdapter)):
         raise ValueError(
-            "solver: expected GaussNewton, LevenbergMarquardt, OptimistixSolver or JaxoptSolver, "
+            "solver: expected GaussNewton, LevenbergMarquardt, GradientDescent, OptimistixSolver or JaxoptSolver, "
             f"got {type(solver).__name__}"
         )
     y0 = jnp.asarray(y0)
@@ -916,7 +1052,8 @@ def least_squares(
     if bounds is not None:
         if isinstance(solver, _AbstractAdapter):
             raise ValueError(
-                f"bounds: not supported by {type(solver).__name__}; use GaussNewton or LevenbergMarquardt"
+                f"bounds: not supported by {type(solver).__name__}; use GaussNewton, LevenbergMarquardt or "
+                "GradientDescent"
             )
         if not (isinstance(bounds, (tuple, list)) and len(bounds) == 2):
             raise ValueError(

@@ -604,3 +604,122 @@ def test_integer_y0_is_promoted():
     sol = least_squares(linear, GaussNewton(), np.zeros(3, dtype=np.int32))
     assert sol.value.dtype == jnp.float64
     assert_close("value", sol.value, PROBLEMS["linear"].y_star, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# GradientDescent: the first-order (Jacobian-transpose) baseline.
+# ---------------------------------------------------------------------------------------------
+
+# GradientDescent stops on the pending gradient step, which underestimates the distance to the
+# minimum by up to the condition number kappa of J^T J: with the tight tolerances (rtol 1e-12) the
+# value is within ~kappa * 1e-12 * |y| of the minimum (kappa ~ 14 for the linear problem, ~ 7.5
+# for the exponential fit), so 1e-9 leaves a wide margin; with the defaults (rtol 1e-8), 1e-6.
+_ATOL_GD = 1e-9
+_ATOL_GD_DEFAULT = 1e-6
+_GD_TIGHT = dict(rtol=1e-12, atol=1e-14, max_steps=400)
+_LINEAR_GD = eqx.filter_jit(
+    lambda y0, args: least_squares(_linear_args, solvers.GradientDescent(**_GD_TIGHT), y0, args)
+)
+_LINEAR_GD_FIXED = eqx.filter_jit(
+    lambda y0, args: least_squares(_linear_args, solvers.GradientDescent(**_GD_TIGHT, fixed_steps=True), y0, args)
+)
+
+
+def test_gradient_descent_linear_matches_lstsq_adaptive_and_fixed():
+    """Nonzero-residual linear problem (kappa(A^T A) ~ 14): lstsq to 1e-8, both loop modes agree."""
+    args = (jnp.asarray(_A), jnp.asarray(_B))
+    ref = np.linalg.lstsq(_A, _B, rcond=None)[0]
+    adaptive = _LINEAR_GD(jnp.zeros(3), args)
+    fixed = _LINEAR_GD_FIXED(jnp.zeros(3), args)
+    for mode, sol in (("adaptive", adaptive), ("fixed", fixed)):
+        assert sol.result == RESULTS.successful, f"{mode}: {RESULTS[sol.result]}"
+        assert_close(f"{mode}: x vs lstsq", sol.value, ref, atol=1e-8)
+        assert_close(f"{mode}: cost", sol.stats["cost"], 0.5 * np.sum((_A @ ref - _B) ** 2), rtol=1e-14)
+    k = int(adaptive.stats["num_steps"])
+    assert 10 < k < _GD_TIGHT["max_steps"], "linear convergence: many steps where Gauss-Newton takes one"
+    assert int(fixed.stats["num_steps"]) == k
+    assert_close("fixed value", fixed.value, adaptive.value, atol=1e-14)
+    assert_close("fixed cost_history", fixed.stats["cost_history"], adaptive.stats["cost_history"], atol=1e-14)
+    hist = np.asarray(adaptive.stats["cost_history"])
+    assert hist.shape == (_GD_TIGHT["max_steps"] + 1,)
+    # the approximate Armijo test accepts steps whose cost change is rounding noise
+    assert np.all(np.diff(hist) <= 8 * np.finfo(float).eps * hist[:-1]), "the cost never increases beyond rounding"
+    assert set(adaptive.stats) == {"num_steps", "cost", "grad_norm", "step_norm", "damping", "cost_history"}
+    assert float(adaptive.stats["damping"]) == 0.0
+    assert float(adaptive.stats["grad_norm"]) <= 1e-10
+
+
+def test_gradient_descent_expfit_matches_scipy():
+    """Nonlinear exponential fit with the analytic Jacobian: scipy's lm minimum to _ATOL_GD."""
+    p = PROBLEMS["expfit"]  # y_star is scipy.optimize.least_squares(method="lm") at 1e-15 tolerances
+    gd = solvers.GradientDescent(**_GD_TIGHT)
+    sol = least_squares(p.fn, gd, jnp.asarray(p.y0), jac=p.jac)
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    assert_close("value vs scipy lm", sol.value, p.y_star, atol=_ATOL_GD)
+    assert_close("cost vs scipy lm", sol.stats["cost"], p.cost_star, atol=1e-14)
+    # rtol and atol are arrays: the default tolerances reuse the compiled solve
+    loose = least_squares(p.fn, dataclasses.replace(gd, rtol=1e-8, atol=1e-10), jnp.asarray(p.y0), jac=p.jac)
+    assert loose.result == RESULTS.successful, RESULTS[loose.result]
+    assert_close("value vs scipy lm, default tolerances", loose.value, p.y_star, atol=_ATOL_GD_DEFAULT)
+    assert int(loose.stats["num_steps"]) < int(sol.stats["num_steps"])
+
+
+def test_gradient_descent_bounds_every_evaluation_in_the_box():
+    """Bounded linear problem from outside the box: every point evaluated is inside; = lsq_linear."""
+    lo, hi = np.full(3, -0.1), np.full(3, 0.1)
+    seen = []
+
+    def fn(y, args):
+        jax.debug.callback(lambda v: seen.append(np.asarray(v)), y)
+        return linear(y, args)
+
+    y0 = np.array([5.0, -5.0, 0.0])  # outside the box: clipped first
+    jac = lambda y, args: jnp.asarray(_A)  # noqa: E731
+    sol = least_squares(fn, solvers.GradientDescent(**_GD_TIGHT), y0, jac=jac, bounds=(lo, hi))
+    jax.block_until_ready(sol)
+    ref = scipy.optimize.lsq_linear(_A, _B, bounds=(lo, hi), method="bvls", tol=1e-15)
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    assert_close("x vs lsq_linear", sol.value, ref.x, atol=_ATOL_GD)
+    assert_close("cost vs lsq_linear", sol.stats["cost"], ref.cost, atol=1e-14)
+    seen = np.stack(seen)
+    assert len(seen) > int(sol.stats["num_steps"]), "one evaluation per trial point"
+    assert np.all(seen >= lo) and np.all(seen <= hi), "every evaluated point lies in the box"
+
+
+def test_gradient_descent_bounds_end_on_the_face():
+    """Exponential fit with b <= -2 (the free minimum b = -1.51 is outside): scipy trf and the closed form."""
+    fn = _boxed(expfit, _EXP_LO, _EXP_HI)
+    y0 = (1.0, 0.0)
+    sol = least_squares(fn, solvers.GradientDescent(**_GD_TIGHT), jnp.asarray(y0), bounds=(_EXP_LO, _EXP_HI))
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    value = np.asarray(sol.value)
+    ref = scipy.optimize.least_squares(
+        lambda y: np.asarray(expfit(jnp.asarray(y), None)), np.clip(y0, _EXP_LO, np.nextafter(_EXP_HI, -np.inf)),
+        method="trf", bounds=(_EXP_LO, _EXP_HI), xtol=1e-15, ftol=1e-15, gtol=1e-15,
+    )
+    assert_close("x vs scipy trf", value, ref.x, atol=_ATOL_SCIPY)
+    assert_close("cost vs scipy trf", sol.stats["cost"], ref.cost, atol=_ATOL_SCIPY)
+    e = np.exp(-2.0 * _T)
+    assert value[1] == -2.0
+    assert_close("a on the face", value[0], (_DATA @ e) / (e @ e), atol=1e-12)
+
+
+def test_gradient_descent_vmap_equals_loop():
+    """A batch of linear problems through args; one (kappa ~ 8e6) runs out of steps, per element."""
+    rng = np.random.default_rng(5)
+    As = np.stack([_A, _A * np.array([1.0, 1.0, 1e-3]), rng.uniform(-1, 1, size=(8, 3)), _A])
+    bs = np.stack([_B, _B, rng.normal(size=8), _A @ np.array([1.0, -2.0, 0.5])])  # the last: zero residual
+    batched = jax.vmap(_LINEAR_GD, in_axes=(None, 0))(jnp.zeros(3), (jnp.asarray(As), jnp.asarray(bs)))
+    expected = [RESULTS.successful, RESULTS.max_steps_reached, RESULTS.successful, RESULTS.successful]
+    for i in range(len(As)):
+        single = _LINEAR_GD(jnp.zeros(3), (jnp.asarray(As[i]), jnp.asarray(bs[i])))
+        assert single.result == expected[i], f"result[{i}]: {RESULTS[single.result]}"
+        assert bool((batched.result == single.result)[i]), f"batched result[{i}]"
+        assert int(batched.stats["num_steps"][i]) == int(single.stats["num_steps"]), f"num_steps[{i}]"
+        # batched and single matmuls round differently; over the 400 steps of the unconverged
+        # ill-conditioned element that grows to ~1e-13
+        assert_close(f"value[{i}]", batched.value[i], single.value, atol=1e-11)
+        assert_close(f"cost_history[{i}]", batched.stats["cost_history"][i], single.stats["cost_history"], atol=1e-11)
+        if expected[i] == RESULTS.successful:
+            assert_close(f"value[{i}] vs lstsq", single.value, np.linalg.lstsq(As[i], bs[i], rcond=None)[0], atol=1e-8)
+    assert int(batched.stats["num_steps"][1]) == _GD_TIGHT["max_steps"]
