@@ -28,7 +28,8 @@ its exact Jacobian ``J_l^{-1}(e)``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -42,6 +43,8 @@ from ._errors import JaxanimError, check_shape
 from ._types import Array, Float
 from .fk import forward_kinematics
 from .jacobians import _jacobian_from_fk, _site_indices
+from .limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit, _charts, _resolve
+from .limits import limit_violation as limit_violation
 from .skeleton import Motion, Skeleton
 
 
@@ -136,9 +139,12 @@ class _Layout(eqx.Module):
     free_joints: tuple[int, ...] = eqx.field(static=True)
     free_root: bool = eqx.field(static=True)
     pin_idx: int | None = eqx.field(static=True)
+    limit_slots: tuple[int, ...] = eqx.field(static=True, default=())  # positions in free_joints
+    limit_ids: tuple[int, ...] = eqx.field(static=True, default=())  # the matching entries of limits
+    hard: bool = eqx.field(static=True, default=True)
 
 
-def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation) -> _Layout:
+def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation, limits=(), limit_mode="hard") -> _Layout:
     if isinstance(targets, Target):
         targets = (targets,)
     if not isinstance(targets, Sequence) or not targets or not all(isinstance(t, Target) for t in targets):
@@ -158,23 +164,44 @@ def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation) -> _Layo
     free_root = root_translation == "free" and pin is None
     if not free_joints and not free_root:
         raise JaxanimError("frozen: every joint is frozen and the root translation is fixed: nothing can move")
+    if limit_mode not in ("hard", "soft"):
+        raise JaxanimError(f"limit_mode: expected 'hard' or 'soft', got {limit_mode!r}")
+    limit_joints = _resolve(skeleton, limits)
+    # a frozen joint keeps its reference rotation: its limit does not apply
+    pairs = [(free_joints.index(j), i) for i, j in enumerate(limit_joints) if j in free_joints]
     return _Layout(
         site_idx, tuple(t.position is not None for t in targets), tuple(t.orientation is not None for t in targets),
         free_joints, free_root, pin_idx,
+        tuple(k for k, _ in pairs), tuple(i for _, i in pairs), limit_mode == "hard",
     )
 
 
-def _pose(skeleton, layout, q_ref, t_ref, y):
-    """Pose from the variables ``y``: rotations ``exp(delta) R_ref``, the root translation."""
+def _pose(skeleton, layout, q_ref, t_ref, y, charts=()):
+    """Pose from the variables ``y``.
+
+    Returns ``(q, t, blocks, E)``: rotations (``exp(delta) R_ref`` for the unlimited free joints,
+    the chart's rotation for limited ones), translations, the per-free-joint variable blocks
+    ``[nfree, 3]`` and ``E [nfree, 3, 3]``, the map from a block's increment to the joint's
+    parent-frame rotation-vector increment (``J_l(delta)`` or the chart's).
+    """
     J = skeleton.num_joints
     nfree = len(layout.free_joints)
     off = 3 if layout.free_root else 0
-    delta = jnp.zeros((J, 3), y.dtype).at[jnp.asarray(layout.free_joints)].set(y[off : off + 3 * nfree].reshape(nfree, 3))
+    blocks = y[off : off + 3 * nfree].reshape(nfree, 3)
+    limited = set(layout.limit_slots)
+    exp_slots = np.asarray([k for k in range(nfree) if k not in limited], dtype=np.int32)
+    exp_joints = np.asarray(layout.free_joints, dtype=np.int32)[exp_slots]
+    delta = jnp.zeros((J, 3), y.dtype).at[exp_joints].set(blocks[exp_slots])
     q = rot.quat_multiply(rot.rotvec_to_quat(delta), q_ref)
+    E = _left_jacobian(delta[jnp.asarray(layout.free_joints)]) if nfree else jnp.zeros((0, 3, 3), y.dtype)
+    for group in charts:
+        qk, Ek = group.omega_columns(blocks[jnp.asarray(group.slots)])
+        q = q.at[jnp.asarray([layout.free_joints[k] for k in group.slots])].set(qk)
+        E = E.at[jnp.asarray(group.slots)].set(Ek)
     t = t_ref
     if layout.free_root:
         t = t.at[0].add(y[:3])
-    return q, t, delta
+    return q, t, blocks, E
 
 
 def _site_rotations(skeleton, out, site_idx):
@@ -183,14 +210,13 @@ def _site_rotations(skeleton, out, site_idx):
     return out.rotations[jnp.asarray(owner)]
 
 
-def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w):
+def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w, charts=(), limit_w=None):
     """Residual vector and its exact Jacobian w.r.t. ``y`` (one FK pass serves both)."""
-    q, t, delta = _pose(skeleton, layout, q_ref, t_ref, y)
+    q, t, blocks, Jl = _pose(skeleton, layout, q_ref, t_ref, y, charts)
     out = forward_kinematics(skeleton, q, t)
     sites = layout.site_idx + ((layout.pin_idx,) if layout.pin_idx is not None else ())
     G = _jacobian_from_fk(skeleton, out.rotations, out.positions, out.end_site_positions, sites)  # [S(+1), 6, 3+3J]
-    # columns w.r.t. the variables: root translation and J_l(delta_j) for the free joints
-    Jl = _left_jacobian(delta[jnp.asarray(layout.free_joints)])  # [nfree, 3, 3]
+    # columns w.r.t. the variables: root translation and E_j (J_l(delta_j) or a chart's) per free joint
     cols = np.asarray([3 + 3 * j + k for j in layout.free_joints for k in range(3)], dtype=np.int32)
     Grot = G[..., cols].reshape(G.shape[0], 6, len(layout.free_joints), 3)
     Grot = jnp.einsum("sakc,kcd->sakd", Grot, Jl).reshape(G.shape[0], 6, 3 * len(layout.free_joints))
@@ -221,57 +247,62 @@ def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, 
             e = rot.matrix_to_rotvec(R_sites[i] @ R_t.T)
             res.append(sw * e)
             rows.append(sw * (_left_jacobian_inverse(e) @ Gcols[i, 3:]))
-    # regulariser towards the reference pose, per free joint
+    # regulariser towards the reference pose, per free joint: sqrt(w_j) log(R_j R_ref_j^T), which is
+    # the variable block itself for unlimited joints (exponential coordinates around R_ref)
     n = y.shape[0]
     off = 3 if layout.free_root else 0
-    w_rows = jnp.repeat(reg_w[jnp.asarray(layout.free_joints)], 3) if layout.free_joints else jnp.zeros((0,), y.dtype)
-    res.append(jnp.sqrt(w_rows) * y[off:])
-    rows.append(jnp.concatenate([jnp.zeros((w_rows.shape[0], off), y.dtype), jnp.diag(jnp.sqrt(w_rows))], axis=1))
+    nfree = len(layout.free_joints)
+    if nfree:
+        sw = jnp.sqrt(reg_w[jnp.asarray(layout.free_joints)])  # [nfree]
+        reg_res = blocks
+        reg_jac = jnp.broadcast_to(jnp.eye(3, dtype=y.dtype), (nfree, 3, 3))
+        if layout.limit_slots:
+            ks = jnp.asarray(layout.limit_slots)
+            js = jnp.asarray([layout.free_joints[k] for k in layout.limit_slots])
+            e = rot.quat_to_rotvec(rot.quat_multiply(q[js], rot.quat_conjugate(q_ref[js])))
+            reg_res = reg_res.at[ks].set(e)
+            reg_jac = reg_jac.at[ks].set(_left_jacobian_inverse(e) @ Jl[ks])
+        res.append((sw[:, None] * reg_res).reshape(3 * nfree))
+        block = jnp.einsum("kl,kab->kalb", jnp.diag(sw), reg_jac).reshape(3 * nfree, 3 * nfree)
+        rows.append(jnp.concatenate([jnp.zeros((3 * nfree, off), y.dtype), block], axis=1))
+    # soft joint limits: sqrt(limit_w) times the angle outside each limit
+    if not layout.hard:
+        slw = jnp.sqrt(limit_w)
+        for group in charts:
+            th = blocks[jnp.asarray(group.slots)]
+            res.append(slw * group.excess(th).reshape(-1))
+            dk = slw * group.excess_jacobian(th)  # [g, p, 3]
+            g, p = dk.shape[:2]
+            cols = np.asarray([[off + 3 * k + c for c in range(3)] for k in group.slots])  # [g, 3]
+            rows_k = jnp.zeros((g, p, n), y.dtype)
+            rows_k = rows_k.at[np.arange(g)[:, None, None], np.arange(p)[None, :, None], cols[:, None, :]].set(dk)
+            rows.append(rows_k.reshape(g * p, n))
     return jnp.concatenate(res), jnp.concatenate(rows, axis=0).reshape(-1, n), (q, t)
 
 
-def solve_ik(
-    skeleton: Skeleton,
-    targets: Sequence[Target] | Target,
-    rotations: Float[Array, "joints 4"],
-    translations: Float[Array, "joints 3"] | None = None,
-    *,
-    reference: tuple[Float[Array, "joints 4"], Float[Array, "joints 3"]] | None = None,
-    pin: str | None = None,
-    frozen: Sequence[str] = (),
-    root_translation: str = "free",
-    regularization: float | Float[Array, ""] = 1e-6,
-    joint_weights: Float[Array, " joints"] | None = None,
-    solver=None,
-    position_tolerance: float | None = None,
-    orientation_tolerance: float = 1e-4,
-    throw: bool = False,
-) -> IKSolution:
-    """Solve one IK problem; batch with ``jax.vmap`` over characters or frames.
+class _Setup(NamedTuple):
+    """One IK problem in the solver's variables (see :func:`_setup`)."""
 
-    Args:
-        skeleton: the tree.
-        targets: :class:`Target` s (positions and/or orientations of joints / End Sites).
-        rotations: ``[joints, 4]`` initial local wxyz quaternions (e.g. a clip frame).
-        translations: ``[joints, 3]`` initial local translations (``None``: the offsets).
-        reference: ``(rotations, translations)`` of the pose the regulariser pulls towards and the
-            pin and frozen joints refer to (default: the initial pose).
-        pin: a joint or End Site that stays exactly where the reference pose puts it.
-        frozen: joint names that keep their reference rotations.
-        root_translation: ``"free"`` or ``"fixed"`` (ignored when ``pin`` is given: it follows).
-        regularization: ``lambda`` of the regulariser ``lambda/2 sum_j w_j |delta_j|^2``.
-        joint_weights: ``[joints]`` per-joint stiffness ``w_j`` against moving (default ones).
-        solver: a :mod:`solvers` least-squares solver (default ``LevenbergMarquardt()``).
-        position_tolerance: distance (file units) within which a position target counts as met
-            for ``success``; default ``1e-4`` times the skeleton's size (sum of |offsets|).
-        orientation_tolerance: angle (radians) within which an orientation target counts as met.
-        throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
+    fn: Callable  # y, args -> residual [m]
+    jac: Callable  # y, args -> Jacobian [m, n]
+    y0: Array  # [n] initial variables
+    bounds: tuple[Array, Array] | None  # hard limits as a box on y
+    pose: Callable  # y -> (rotations [J, 4], translations [J, 3]) with the pin applied
+    layout: _Layout
+    targets: tuple[Target, ...]
+    dtype: Any
 
-    Returns:
-        :class:`IKSolution`.
-    """
+
+def _setup(
+    skeleton, targets, rotations, translations, *, reference, pin, frozen, root_translation, regularization,
+    joint_weights, limits, limit_mode, limit_weight,
+) -> _Setup:
+    """Validate the input of :func:`solve_ik` and write the problem in the solver's variables."""
     J = skeleton.num_joints
-    layout = _layout(skeleton, targets, pin, frozen, root_translation)
+    if isinstance(limits, (EulerLimit, SwingTwistLimit)):
+        limits = (limits,)
+    limits = tuple(limits)
+    layout = _layout(skeleton, targets, pin, frozen, root_translation, limits, limit_mode)
     targets = (targets,) if isinstance(targets, Target) else tuple(targets)
     check_shape("rotations", rotations, (J, 4), what=f"(joints, 4) = ({J}, 4)")
     q0 = jnp.asarray(rotations)
@@ -291,25 +322,107 @@ def solve_ik(
     pin_ref = None
     if layout.pin_idx is not None:
         pin_ref = forward_kinematics(skeleton, q_ref, t_ref).site_positions()[layout.pin_idx]
-    # initial variables: the initial pose in coordinates around the reference
+    charts = _charts(skeleton, [limits[i] for i in layout.limit_ids],
+                     [layout.free_joints[k] for k in layout.limit_slots], layout.limit_slots, layout.hard, dtype)
+    limit_w = jnp.asarray(limit_weight, dtype)
+    # initial variables: the initial pose in coordinates around the reference (limited joints: in
+    # their chart, projected into the limit when hard)
     nfree = len(layout.free_joints)
     d0 = rot.quat_to_rotvec(rot.quat_multiply(q0, rot.quat_conjugate(q_ref)))[jnp.asarray(layout.free_joints)]
+    for group in charts:
+        js = jnp.asarray([layout.free_joints[k] for k in group.slots])
+        d0 = d0.at[jnp.asarray(group.slots)].set(group.from_quat(q0[js]))
+    off = 3 if layout.free_root else 0
     parts = ([t0[0] - t_ref[0]] if layout.free_root else []) + [d0.reshape(3 * nfree)]
     y0 = jnp.concatenate(parts)
+    bounds = None
+    if layout.hard and charts:
+        lower = jnp.full(y0.shape, -jnp.inf, dtype)
+        upper = jnp.full(y0.shape, jnp.inf, dtype)
+        for group in charts:
+            lo, hi = group.bounds()  # [g, 3]
+            cols = jnp.asarray([[off + 3 * k + c for c in range(3)] for k in group.slots])
+            lower = lower.at[cols].set(lo)
+            upper = upper.at[cols].set(hi)
+        bounds = (lower, upper)
 
     def fn(y, args):
-        return _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w)[0]
+        return _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w, charts, limit_w)[0]
 
     def jac(y, args):
-        return _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w)[1]
+        return _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w, charts, limit_w)[1]
 
+
+    def pose(y):
+        q, t, _, _ = _pose(skeleton, layout, q_ref, t_ref, y, charts)
+        if layout.pin_idx is not None:  # the root translation follows the pin (see _residual_and_jacobian)
+            t = t.at[0].add(pin_ref - forward_kinematics(skeleton, q, t).site_positions()[layout.pin_idx])
+        return q, t
+
+    return _Setup(fn, jac, y0, bounds, pose, layout, targets, dtype)
+
+
+def solve_ik(
+    skeleton: Skeleton,
+    targets: Sequence[Target] | Target,
+    rotations: Float[Array, "joints 4"],
+    translations: Float[Array, "joints 3"] | None = None,
+    *,
+    reference: tuple[Float[Array, "joints 4"], Float[Array, "joints 3"]] | None = None,
+    pin: str | None = None,
+    frozen: Sequence[str] = (),
+    root_translation: str = "free",
+    regularization: float | Float[Array, ""] = 1e-6,
+    joint_weights: Float[Array, " joints"] | None = None,
+    limits: Sequence[EulerLimit | SwingTwistLimit] = (),
+    limit_mode: str = "hard",
+    limit_weight: float | Float[Array, ""] = 1.0,
+    solver=None,
+    position_tolerance: float | None = None,
+    orientation_tolerance: float = 1e-4,
+    throw: bool = False,
+) -> IKSolution:
+    """Solve one IK problem; batch with ``jax.vmap`` over characters or frames.
+
+    Args:
+        skeleton: the tree.
+        targets: :class:`Target` s (positions and/or orientations of joints / End Sites).
+        rotations: ``[joints, 4]`` initial local wxyz quaternions (e.g. a clip frame).
+        translations: ``[joints, 3]`` initial local translations (``None``: the offsets).
+        reference: ``(rotations, translations)`` of the pose the regulariser pulls towards and the
+            pin and frozen joints refer to (default: the initial pose).
+        pin: a joint or End Site that stays exactly where the reference pose puts it.
+        frozen: joint names that keep their reference rotations.
+        root_translation: ``"free"`` or ``"fixed"`` (ignored when ``pin`` is given: it follows).
+        regularization: ``lambda`` of the regulariser ``lambda/2 sum_j w_j |delta_j|^2``.
+        joint_weights: ``[joints]`` per-joint stiffness ``w_j`` against moving (default ones).
+        limits: :class:`~jaxanim.limits.EulerLimit` / :class:`~jaxanim.limits.SwingTwistLimit` s
+            on joints' local rotations (frozen joints ignore theirs).
+        limit_mode: ``"hard"``: every iterate satisfies the limits exactly (the limited joints
+            are written in coordinates where the limit is a box, and the solver is bounded; needs
+            an own solver: ``LevenbergMarquardt``, ``GaussNewton`` or ``GradientDescent``); the
+            start is projected into the limits. ``"soft"``: a penalty
+            ``limit_weight/2 * (angle outside the limit)^2`` per limit, any solver.
+        limit_weight: weight of the soft penalty (array: sweepable by vmap).
+        solver: a :mod:`solvers` least-squares solver (default ``LevenbergMarquardt()``).
+        position_tolerance: distance (file units) within which a position target counts as met
+            for ``success``; default ``1e-4`` times the skeleton's size (sum of |offsets|).
+        orientation_tolerance: angle (radians) within which an orientation target counts as met.
+        throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
+
+    Returns:
+        :class:`IKSolution`.
+    """
+    problem = _setup(
+        skeleton, targets, rotations, translations, reference=reference, pin=pin, frozen=frozen,
+        root_translation=root_translation, regularization=regularization, joint_weights=joint_weights,
+        limits=limits, limit_mode=limit_mode, limit_weight=limit_weight,
+    )
+    layout, targets, dtype = problem.layout, problem.targets, problem.dtype
     solver = solvers.LevenbergMarquardt() if solver is None else solver
-    sol = solvers.least_squares(fn, solver, y0, None, jac=jac, throw=throw)
-    q, t, _ = _pose(skeleton, layout, q_ref, t_ref, sol.value)
+    sol = solvers.least_squares(problem.fn, solver, problem.y0, None, jac=problem.jac, bounds=problem.bounds, throw=throw)
+    q, t = problem.pose(sol.value)
     out = forward_kinematics(skeleton, q, t)
-    if layout.pin_idx is not None:  # the root translation follows the pin (see _residual_and_jacobian)
-        t = t.at[0].add(pin_ref - out.site_positions()[layout.pin_idx])
-        out = forward_kinematics(skeleton, q, t)
     pos_all = out.site_positions()
     R_sites = _site_rotations(skeleton, out, layout.site_idx)
     pe, oe = [], []
@@ -434,3 +547,7 @@ def targets_from_json(skeleton: Skeleton, data, num_frames: int):
     if "regularization" in data:
         kwargs["regularization"] = float(data["regularization"])
     return tuple(targets), kwargs
+
+
+# the CCD baseline lives in its own module (it imports Target and IKSolution from here)
+from .ik_ccd import solve_ik_ccd as solve_ik_ccd  # noqa: E402
