@@ -362,6 +362,26 @@ def _setup(
     return _Setup(fn, jac, y0, bounds, pose, layout, targets, dtype)
 
 
+def _tolerance_stop(targets, position_tolerance, orientation_tolerance, dtype):
+    """``stop(y, r, args)``: every target's residual (``sqrt(w)`` times its error, in the order
+    :func:`_residual_and_jacobian` writes them) within ``sqrt(w)`` times its tolerance."""
+    blocks, k = [], 0
+    for tgt in targets:
+        for present, tol in ((tgt.position is not None, position_tolerance), (tgt.orientation is not None, orientation_tolerance)):
+            if present:
+                blocks.append((k, tgt.weight, tol))
+                k += 3
+
+    def stop(y, r, args):
+        ok = jnp.array(True)
+        for k0, w, tol in blocks:
+            sw = jnp.sqrt(jnp.asarray(w, dtype))
+            ok = ok & (jnp.sqrt(jnp.sum(r[k0 : k0 + 3] ** 2)) <= sw * jnp.asarray(tol, dtype))
+        return ok
+
+    return stop
+
+
 def solve_ik(
     skeleton: Skeleton,
     targets: Sequence[Target] | Target,
@@ -380,6 +400,7 @@ def solve_ik(
     solver=None,
     position_tolerance: float | None = None,
     orientation_tolerance: float = 1e-4,
+    stop_at_tolerance: bool = True,
     throw: bool = False,
 ) -> IKSolution:
     """Solve one IK problem; batch with ``jax.vmap`` over characters or frames.
@@ -406,8 +427,12 @@ def solve_ik(
         limit_weight: weight of the soft penalty (array: sweepable by vmap).
         solver: a :mod:`solvers` least-squares solver (default ``LevenbergMarquardt()``).
         position_tolerance: distance (file units) within which a position target counts as met
-            for ``success``; default ``1e-4`` times the skeleton's size (sum of |offsets|).
+            for ``success``; default ``1e-5`` times the skeleton's size (sum of |offsets|).
         orientation_tolerance: angle (radians) within which an orientation target counts as met.
+        stop_at_tolerance: stop as soon as every target is within its tolerance (the usual IK
+            criterion, as in closed-loop IK; own solvers only). ``False``: solve the regularised
+            least-squares problem to the solver's own tolerances (slow when the regulariser is weak
+            and the task leaves many directions free: the minimum is then very flat).
         throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
 
     Returns:
@@ -420,7 +445,14 @@ def solve_ik(
     )
     layout, targets, dtype = problem.layout, problem.targets, problem.dtype
     solver = solvers.LevenbergMarquardt() if solver is None else solver
-    sol = solvers.least_squares(problem.fn, solver, problem.y0, None, jac=problem.jac, bounds=problem.bounds, throw=throw)
+    if position_tolerance is None:
+        position_tolerance = 1e-5 * float(np.abs(np.asarray(skeleton.offsets)).sum())
+    stop = None
+    if stop_at_tolerance and isinstance(solver, solvers.AbstractLeastSquaresSolver):
+        stop = _tolerance_stop(targets, position_tolerance, orientation_tolerance, dtype)
+    sol = solvers.least_squares(
+        problem.fn, solver, problem.y0, None, jac=problem.jac, bounds=problem.bounds, stop=stop, throw=throw
+    )
     q, t = problem.pose(sol.value)
     out = forward_kinematics(skeleton, q, t)
     pos_all = out.site_positions()
@@ -430,8 +462,6 @@ def solve_ik(
         pe.append(jnp.linalg.norm(pos_all[layout.site_idx[i]] - tgt.position) if tgt.position is not None else jnp.zeros((), dtype))
         oe.append(rot.quat_distance(rot.matrix_to_quat(R_sites[i]), tgt.orientation.astype(dtype)) if tgt.orientation is not None else jnp.zeros((), dtype))
     pe, oe = jnp.stack(pe), jnp.stack(oe)
-    if position_tolerance is None:
-        position_tolerance = 1e-4 * float(np.abs(np.asarray(skeleton.offsets)).sum())
     success = (sol.result == solvers.RESULTS.successful) & jnp.all(pe <= position_tolerance) & jnp.all(oe <= orientation_tolerance)
     return IKSolution(rot.quat_canonical(q), t, sol.result, sol.stats, pe, oe, success)
 

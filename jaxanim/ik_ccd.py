@@ -319,7 +319,7 @@ def solve_ik_ccd(
         root_translation: ``"free"`` or ``"fixed"``.
         max_sweeps: the most sweeps (each visits every free joint once). Static.
         position_tolerance: distance (file units) within which a position target is met; default
-            ``1e-4`` times the skeleton's size (sum of |offsets|), as :func:`~jaxanim.ik.solve_ik`.
+            ``1e-5`` times the skeleton's size (sum of |offsets|), as :func:`~jaxanim.ik.solve_ik`.
         orientation_tolerance: angle (radians) within which an orientation target is met.
         orientation_scale: length ``s`` (file units) at which an orientation error of ``theta``
             weighs like a position error of ``s theta`` in the per-joint steps; default ``0.05``
@@ -368,7 +368,7 @@ def solve_ik_ccd(
     q_goal = jnp.stack([ident if t.orientation is None else jnp.asarray(t.orientation, dtype) for t in targets])
     R_goal = rot.quat_to_matrix(q_goal)  # normalises
     size = jnp.sum(jnp.abs(skeleton.offsets.astype(dtype)))
-    ptol = 1e-4 * size if position_tolerance is None else jnp.asarray(position_tolerance, dtype)
+    ptol = 1e-5 * size if position_tolerance is None else jnp.asarray(position_tolerance, dtype)
     otol = jnp.asarray(orientation_tolerance, dtype)
     scale = 0.05 * size if orientation_scale is None else jnp.asarray(orientation_scale, dtype)
     scale2 = scale * scale

@@ -99,6 +99,7 @@ class _Problem(eqx.Module):
     lower: Float[Array, " n"] | None
     upper: Float[Array, " n"] | None
     m: int = eqx.field(static=True)
+    stop: Callable | None = eqx.field(static=True, default=None)
 
     @property
     def bounded(self) -> bool:
@@ -737,8 +738,15 @@ def _iterate(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Ar
     # The non-finite check: at y0 here; afterwards the solvers' steps only ever accept trial
     # points whose residual and Jacobian are finite (a non-finite trial is a rejected step), so
     # every accepted state stays finite and `value` is always the last finite iterate.
+    def terminate(y, state):
+        done, result = solver.terminate(problem, y, args, state)
+        if problem.stop is not None:  # the user's criterion: good enough, stop here as converged
+            user = jnp.asarray(problem.stop(y, state.r, args), bool)
+            done, result = done | user, RESULTS.where(user, RESULTS.successful, result)
+        return done, result
+
     state0 = solver.init(problem, y0, args)
-    stop0, result0 = solver.terminate(problem, y0, args, state0)
+    stop0, result0 = terminate(y0, state0)
     finite0 = _all_finite(y0, state0.r, state0.J)
     carry = _Carry(
         y=y0,
@@ -751,7 +759,7 @@ def _iterate(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Ar
 
     def body(c: _Carry) -> _Carry:
         y, state = solver.step(problem, c.y, args, c.state)
-        done, result = solver.terminate(problem, y, args, state)
+        done, result = terminate(y, state)
         k = c.num_steps + 1
         return _Carry(y, state, k, done, result, c.cost_history.at[k].set(state.cost))
 
@@ -994,6 +1002,7 @@ def least_squares(
     *,
     jac: JacobianFn | None = None,
     bounds: tuple[Float[ArrayLike, " n"], Float[ArrayLike, " n"]] | None = None,
+    stop: Callable[[Array, Array, PyTree], Bool[ArrayLike, ""]] | None = None,
     throw: bool = False,
 ) -> Solution:
     r"""Minimise ``0.5 * |fn(y, args)|^2`` over ``y`` (optionally in a box) from ``y0``.
@@ -1017,6 +1026,10 @@ def least_squares(
             through a ``jax.custom_jvp`` on ``fn``.
         bounds: optional ``(lower, upper)``, each ``[n]`` (or a scalar), ``-inf``/``inf`` for free
             variables; own solvers only. Every iterate satisfies ``lower <= y <= upper`` exactly.
+        stop: optional early-stop criterion ``stop(y, r, args) -> bool`` on an iterate and its
+            residual (no extra evaluation of ``fn``), checked at ``y0`` and after every step; when
+            it holds the solve ends there with ``RESULTS.successful`` (e.g. IK: every target within
+            its tolerance, as in closed-loop IK). Own solvers only.
         throw: if true, raise (through ``RESULTS.error_if``, an ``equinox.EquinoxRuntimeError``
             whose message is the result's advice) unless the solve succeeds. Under ``vmap`` one
             failing element raises for the whole batch.
@@ -1029,7 +1042,7 @@ def least_squares(
     Raises:
         ValueError: ``y0`` is not 1-D, ``bounds`` do not match ``y0`` or ``lower > upper``,
             ``fn`` does not return a 1-D array, ``jac`` does not return ``[m, n]``, or bounds were
-            given to a backend adapter. Raised in Python, before anything is computed.
+            given (or ``stop``) to a backend adapter. Raised in Python, before anything is computed.
         equinox.EquinoxRuntimeError: ``throw=True`` and the solve failed.
     """
     if not isinstance(solver, (AbstractLeastSquaresSolver, _AbstractAdapter)):
@@ -1068,11 +1081,15 @@ def least_squares(
         if not isinstance(lower, jax.core.Tracer) and not isinstance(upper, jax.core.Tracer):
             if np.any(np.asarray(lower) > np.asarray(upper)):
                 raise ValueError("bounds: expected lower <= upper for every variable")
-    return _least_squares(fn, jac, solver, y0, args, lower, upper, throw)
+    if stop is not None and isinstance(solver, _AbstractAdapter):
+        raise ValueError(
+            f"stop: not supported by {type(solver).__name__}; use GaussNewton, LevenbergMarquardt or GradientDescent"
+        )
+    return _least_squares(fn, jac, solver, y0, args, lower, upper, stop, throw)
 
 
 @eqx.filter_jit
-def _least_squares(fn, jac, solver, y0, args, lower, upper, throw) -> Solution:
+def _least_squares(fn, jac, solver, y0, args, lower, upper, stop, throw) -> Solution:
     n = y0.shape[0]
     out = eqx.filter_eval_shape(fn, y0, args)
     shape = getattr(out, "shape", None)
@@ -1086,7 +1103,7 @@ def _least_squares(fn, jac, solver, y0, args, lower, upper, throw) -> Solution:
         if jshape is None or tuple(jshape) != (m, n):
             got = _fmt(jshape) if jshape is not None else type(jout).__name__
             raise ValueError(f"jac: expected jac(y, args) to return shape (m, n) = ({m}, {n}), got {got}")
-    problem = _Problem(fn=fn, jac=jac, lower=lower, upper=upper, m=m)
+    problem = _Problem(fn=fn, jac=jac, lower=lower, upper=upper, m=m, stop=stop)
     if isinstance(solver, _AbstractAdapter):
         sol = solver._solve(problem, y0, args)
     else:

@@ -82,7 +82,8 @@ def test_reachable_targets_on_cmu_skeleton():
     skel, _ = _cmu()
     targets = _random_targets(skel, 0)
     q0 = skel.rest_rotations()
-    sol = ik.solve_ik(skel, targets, q0, None, regularization=0.0, solver=solvers.LevenbergMarquardt(max_steps=200))
+    sol = ik.solve_ik(skel, targets, q0, None, regularization=0.0, solver=solvers.LevenbergMarquardt(max_steps=200),
+                      position_tolerance=1e-9, orientation_tolerance=1e-9)
     assert sol.result == solvers.RESULTS.successful, solvers.RESULTS[sol.result]
     assert float(jnp.max(sol.position_errors)) < _TOL_REACH
     assert float(jnp.max(sol.orientation_errors)) < _TOL_REACH
@@ -190,7 +191,8 @@ def test_ik_matches_scipy_least_squares():
         both, n = _problem_fns(skel, targets, q, t)
         f = jax.jit(lambda y, both=both: both(y)[0])
         jf = jax.jit(lambda y, both=both: both(y)[1])
-        sol = ik.solve_ik(skel, targets, q, t, regularization=1e-3, solver=solvers.LevenbergMarquardt(max_steps=300))
+        sol = ik.solve_ik(skel, targets, q, t, regularization=1e-3, solver=solvers.LevenbergMarquardt(max_steps=300),
+                          stop_at_tolerance=False)
         assert bool(jnp.all(jnp.isfinite(sol.rotations))), name
         y_ours = jnp.concatenate([
             sol.translations[0] - t[0],
@@ -261,3 +263,28 @@ def test_cli_ik_writes_edited_bvh(tmp_path):
     assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "bad.json"), "--out", str(out)]) == 2
     (tmp_path / "bad2.json").write_text(json.dumps({"targets": [{"joint": "LeftHand", "position": [0, 0]}]}))
     assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "bad2.json"), "--out", str(out)]) == 2
+
+
+def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
+    """The default stops at the first iterate that meets every target's tolerance; without it the
+    weakly regularised problem is solved to the solver's tolerances (many more steps)."""
+    skel = small_skeleton()
+    q, t = random_pose(skel, 11)
+    goal_q, goal_t = random_pose(skel, 12)
+    out = jaxanim.forward_kinematics(skel, goal_q, goal_t)
+    targets = (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4])),
+               ik.Target("head_End", out.end_site_positions[0], weight=0.5))
+    tol = 1e-3
+
+    def solve(stop):
+        return ik.solve_ik(skel, targets, q, t, position_tolerance=tol, orientation_tolerance=tol,
+                           stop_at_tolerance=stop, solver=solvers.LevenbergMarquardt(max_steps=500))
+
+    early, full = solve(True), solve(False)
+    assert bool(early.success) and early.result == solvers.RESULTS.successful
+    assert float(jnp.max(early.position_errors)) <= tol and float(jnp.max(early.orientation_errors)) <= tol
+    assert int(early.stats["num_steps"]) < int(full.stats["num_steps"])
+    # one step earlier the targets were not all met (it stopped at the first iterate that met them)
+    fewer = ik.solve_ik(skel, targets, q, t, position_tolerance=tol, orientation_tolerance=tol,
+                        solver=solvers.LevenbergMarquardt(max_steps=int(early.stats["num_steps"]) - 1))
+    assert not bool(fewer.success)

@@ -176,7 +176,8 @@ def test_hard_euler_limits_on_cmu_batch():
         limits = tuple(EulerLimit(n, -half_width * jnp.ones(3), half_width * jnp.ones(3), "ZYX")
                        for n in skel.names[1:])
         return ik.solve_ik(skel, tg, q0, None, limits=limits, regularization=0.0,
-                           solver=solvers.LevenbergMarquardt(max_steps=300)), limits
+                           solver=solvers.LevenbergMarquardt(max_steps=300),
+                           position_tolerance=1e-9, orientation_tolerance=1e-9), limits
 
     f = jax.jit(jax.vmap(lambda tg, w: solve(tg, w)[0], in_axes=(0, None)))
     for width, reachable in ((np.pi / 4, True), (np.radians(20), False)):

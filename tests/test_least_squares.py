@@ -723,3 +723,26 @@ def test_gradient_descent_vmap_equals_loop():
         if expected[i] == RESULTS.successful:
             assert_close(f"value[{i}] vs lstsq", single.value, np.linalg.lstsq(As[i], bs[i], rcond=None)[0], atol=1e-8)
     assert int(batched.stats["num_steps"][1]) == _GD_TIGHT["max_steps"]
+
+
+@pytest.mark.parametrize("fixed", [False, True], ids=["adaptive", "fixed"])
+def test_stop_criterion_ends_the_solve_early(fixed):
+    """``stop(y, r, args)`` ends the solve at the first iterate where it holds, as successful."""
+    A = jnp.asarray(np.random.default_rng(3).normal(size=(6, 3)))
+    b = jnp.asarray(np.random.default_rng(4).normal(size=6))
+
+    def fn(y, args):
+        return A @ jnp.sin(y) - b
+
+    y0 = jnp.zeros(3)
+    full = least_squares(fn, LevenbergMarquardt(fixed_steps=fixed, max_steps=50), y0)
+    target = float(full.stats["cost"]) * 1.01 + 1e-9
+    sol = least_squares(fn, LevenbergMarquardt(fixed_steps=fixed, max_steps=50), y0,
+                        stop=lambda y, r, args: 0.5 * (r @ r) <= target)
+    assert sol.result == RESULTS.successful
+    k = int(sol.stats["num_steps"])
+    assert k < int(full.stats["num_steps"])
+    history = np.asarray(sol.stats["cost_history"])
+    assert history[k] <= target and np.all(history[:k] > target)
+    with pytest.raises(ValueError, match="stop: not supported by OptimistixSolver"):
+        least_squares(fn, OptimistixSolver(optx.LevenbergMarquardt(1e-8, 1e-8)), y0, stop=lambda y, r, a: True)
