@@ -520,7 +520,15 @@ def targets_from_json(skeleton: Skeleton, data, num_frames: int):
         {"pin": NAME or null, "root_translation": "free" | "fixed", "frozen": [NAME, ...],
          "targets": [{"joint": NAME, "position": [x, y, z] or one [x, y, z] per frame,
                       "orientation": [w, x, y, z] or one per frame (optional), "weight": number}],
-         "regularization": number (optional)}
+         "regularization": number, "position_tolerance": number, "orientation_tolerance": number,
+         "limits": [{"joint": NAME, "lower": [3 degrees], "upper": [3 degrees], "order": "ZXY"}
+                    or {"joint": NAME, "swing": degrees or [2 degrees], "twist": [lower, upper] degrees,
+                        "axis": [x, y, z]}],
+         "limit_mode": "hard" | "soft", "limit_weight": number}
+
+    (every field but ``targets`` optional; an Euler limit's ``order`` defaults to the joint's
+    channel order, so its bounds are the angles written in the BVH file; a swing-twist limit's
+    ``axis`` defaults to the bone).
 
     NAME is a joint or an End Site (``<joint>_End``); positions are world coordinates in the file's
     units.
@@ -533,7 +541,10 @@ def targets_from_json(skeleton: Skeleton, data, num_frames: int):
     """
     if not isinstance(data, dict):
         raise JaxanimError("TARGETS.json: expected a JSON object at the top level")
-    unknown = set(data) - {"pin", "root_translation", "frozen", "targets", "regularization"}
+    unknown = set(data) - {
+        "pin", "root_translation", "frozen", "targets", "regularization", "position_tolerance",
+        "orientation_tolerance", "limits", "limit_mode", "limit_weight",
+    }
     if unknown:
         raise JaxanimError(f"TARGETS.json: unknown fields {sorted(unknown)}")
     items = data.get("targets")
@@ -574,9 +585,45 @@ def targets_from_json(skeleton: Skeleton, data, num_frames: int):
     if not isinstance(frozen, list):
         raise JaxanimError("TARGETS.json: 'frozen' must be a list of joint names")
     kwargs["frozen"] = tuple(frozen)
-    if "regularization" in data:
-        kwargs["regularization"] = float(data["regularization"])
+    for key in ("regularization", "position_tolerance", "orientation_tolerance", "limit_weight"):
+        if key in data:
+            if not isinstance(data[key], (int, float)) or isinstance(data[key], bool) or data[key] < 0:
+                raise JaxanimError(f"TARGETS.json: {key!r} must be a non-negative number, got {data[key]!r}")
+            kwargs[key] = float(data[key])
+    if "limit_mode" in data:
+        kwargs["limit_mode"] = data["limit_mode"]
+    if "limits" in data:
+        kwargs["limits"] = _limits_from_json(skeleton, data["limits"])
     return tuple(targets), kwargs
+
+
+def _limits_from_json(skeleton: Skeleton, items) -> tuple:
+    if not isinstance(items, list):
+        raise JaxanimError("TARGETS.json: 'limits' must be a list of objects")
+    out = []
+    for k, item in enumerate(items):
+        where = f"TARGETS.json: limits[{k}]"
+        if not isinstance(item, dict) or "joint" not in item:
+            raise JaxanimError(f"{where}: expected an object with a 'joint' field")
+        skeleton.index(item["joint"])  # raises, listing the valid names
+        euler, swing = "lower" in item or "upper" in item, "swing" in item
+        allowed = {"joint", "lower", "upper", "order"} if euler else {"joint", "swing", "twist", "axis"}
+        if euler == swing or set(item) - allowed:
+            raise JaxanimError(
+                f"{where}: expected either 'lower', 'upper' (and 'order') of an Euler box or 'swing' (and "
+                f"'twist', 'axis') of a swing-twist limit, got fields {sorted(item)}"
+            )
+        try:
+            if euler:
+                out.append(EulerLimit(item["joint"], item.get("lower"), item.get("upper"), item.get("order"), degrees=True))
+            else:
+                out.append(SwingTwistLimit(item["joint"], item["swing"], item.get("twist", (-180.0, 180.0)),
+                                           item.get("axis"), degrees=True))
+        except JaxanimError as e:
+            raise JaxanimError(f"{where}: {e}") from None
+        except (TypeError, ValueError):
+            raise JaxanimError(f"{where}: expected numbers") from None
+    return tuple(out)
 
 
 # the CCD baseline lives in its own module (it imports Target and IKSolution from here)

@@ -250,7 +250,8 @@ def test_cli_ik_writes_edited_bvh(tmp_path):
     hand = np.asarray(fk(skel, short.rotations, short.translations).positions[:, skel.index("LeftHand")])
     goal = hand + np.array([0.05, 0.1, 0.0])
     spec = {"pin": "LeftToeBase_End", "frozen": ["RightUpLeg"],
-            "targets": [{"joint": "LeftHand", "position": goal.tolist(), "weight": 1.0}]}
+            "targets": [{"joint": "LeftHand", "position": goal.tolist(), "weight": 1.0}],
+            "limits": [{"joint": "LeftForeArm", "swing": 150, "twist": [-90, 90]}]}
     (tmp_path / "t.json").write_text(json.dumps(spec))
     out = tmp_path / "out.bvh"
     assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "t.json"), "--out", str(out)]) == 0
@@ -258,6 +259,8 @@ def test_cli_ik_writes_edited_bvh(tmp_path):
     assert skel2.names == skel.names and skel2.channels == skel.channels
     got = np.asarray(fk(skel2, edited.rotations, edited.translations).positions[:, skel.index("LeftHand")])
     assert float(np.abs(got - goal).max()) < 1e-4  # file precision (6 decimals) bounds it
+    limits = ik.targets_from_json(skel, spec, 8)[1]["limits"]
+    assert float(jnp.max(jax.vmap(lambda q: ik.limit_violation(skel, limits, q))(edited.rotations))) < 1e-6
     # bad input: a clear error and exit code 2
     (tmp_path / "bad.json").write_text(json.dumps({"targets": [{"joint": "Tail", "position": [0, 0, 0]}]}))
     assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "bad.json"), "--out", str(out)]) == 2
@@ -288,3 +291,27 @@ def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
     fewer = ik.solve_ik(skel, targets, q, t, position_tolerance=tol, orientation_tolerance=tol,
                         solver=solvers.LevenbergMarquardt(max_steps=int(early.stats["num_steps"]) - 1))
     assert not bool(fewer.success)
+
+
+def test_targets_json_limits_and_tolerances():
+    skel = small_skeleton()
+    spec = {"targets": [{"joint": "forearm_End", "position": [0, 1, 2]}], "position_tolerance": 0.01,
+            "limit_mode": "soft", "limit_weight": 10,
+            "limits": [{"joint": "arm", "lower": [-10, -20, -30], "upper": [10, 20, 30], "order": "ZXY"},
+                       {"joint": "forearm", "swing": [40, 20], "twist": [-5, 5]}]}
+    targets, kw = ik.targets_from_json(skel, spec, 4)
+    assert kw["position_tolerance"] == 0.01 and kw["limit_mode"] == "soft" and kw["limit_weight"] == 10.0
+    euler, swing = kw["limits"]
+    assert euler.order == "ZXY" and swing.axis is None
+    np.testing.assert_allclose(euler.lower, np.radians([-10, -20, -30]))
+    np.testing.assert_allclose(swing.swing, np.radians([40, 20]))
+    np.testing.assert_allclose(swing.twist, np.radians([-5, 5]))
+    bad = [({"joint": "elbow", "swing": 10}, "unknown joint 'elbow'"),
+           ({"joint": "arm", "swing": 10, "lower": [0, 0, 0]}, "expected either 'lower', 'upper'"),
+           ({"joint": "arm", "lower": [0, 0], "upper": [1, 1, 1]}, r"limits\[0\]: limits\['arm'\].lower: expected shape"),
+           ({"joint": "arm", "swing": 200}, r"swing: expected angles in \(0, pi\)")]
+    for item, msg in bad:
+        with pytest.raises(jaxanim.JaxanimError, match=msg):
+            ik.targets_from_json(skel, {**spec, "limits": [item]}, 4)
+    with pytest.raises(jaxanim.JaxanimError, match="'limit_weight' must be a non-negative number"):
+        ik.targets_from_json(skel, {**spec, "limit_weight": "stiff"}, 4)
