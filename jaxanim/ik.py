@@ -252,7 +252,7 @@ def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, 
     n = y.shape[0]
     off = 3 if layout.free_root else 0
     nfree = len(layout.free_joints)
-    if nfree:
+    if nfree and reg_w is not None:
         sw = jnp.sqrt(reg_w[jnp.asarray(layout.free_joints)])  # [nfree]
         reg_res = blocks
         reg_jac = jnp.broadcast_to(jnp.eye(3, dtype=y.dtype), (nfree, 3, 3))
@@ -291,6 +291,7 @@ class _Setup(NamedTuple):
     layout: _Layout
     targets: tuple[Target, ...]
     dtype: Any
+    var_weights: Array | None  # [n] joint weights per variable (None: not given)
 
 
 def _setup(
@@ -318,7 +319,10 @@ def _setup(
         q_ref, t_ref = jnp.asarray(q_ref, dtype), jnp.asarray(t_ref, dtype)
     w = jnp.ones(J, dtype) if joint_weights is None else jnp.asarray(joint_weights, dtype)
     check_shape("joint_weights", w, (J,), what=f"(joints,) = ({J},)")
-    reg_w = jnp.asarray(regularization, dtype) * w
+    # a literal 0 removes the regulariser's rows: the residual then has only the targets' rows
+    # (fewer than the variables), and the solvers take the cheap m x m path
+    no_reg = isinstance(regularization, (int, float)) and regularization == 0
+    reg_w = None if no_reg else jnp.asarray(regularization, dtype) * w
     pin_ref = None
     if layout.pin_idx is not None:
         pin_ref = forward_kinematics(skeleton, q_ref, t_ref).site_positions()[layout.pin_idx]
@@ -359,7 +363,9 @@ def _setup(
             t = t.at[0].add(pin_ref - forward_kinematics(skeleton, q, t).site_positions()[layout.pin_idx])
         return q, t
 
-    return _Setup(fn, jac, y0, bounds, pose, layout, targets, dtype)
+    # joint weights as the damping metric W of Levenberg-Marquardt (the notes' eq. 4.10)
+    var_w = jnp.concatenate(([jnp.ones(3, dtype)] if layout.free_root else []) + [jnp.repeat(w[jnp.asarray(layout.free_joints)], 3)])
+    return _Setup(fn, jac, y0, bounds, pose, layout, targets, dtype, None if joint_weights is None else var_w)
 
 
 def _tolerance_stop(targets, position_tolerance, orientation_tolerance, dtype):
@@ -392,7 +398,7 @@ def solve_ik(
     pin: str | None = None,
     frozen: Sequence[str] = (),
     root_translation: str = "free",
-    regularization: float | Float[Array, ""] = 1e-6,
+    regularization: float | Float[Array, ""] = 0.0,
     joint_weights: Float[Array, " joints"] | None = None,
     limits: Sequence[EulerLimit | SwingTwistLimit] = (),
     limit_mode: str = "hard",
@@ -415,8 +421,14 @@ def solve_ik(
         pin: a joint or End Site that stays exactly where the reference pose puts it.
         frozen: joint names that keep their reference rotations.
         root_translation: ``"free"`` or ``"fixed"`` (ignored when ``pin`` is given: it follows).
-        regularization: ``lambda`` of the regulariser ``lambda/2 sum_j w_j |delta_j|^2``.
-        joint_weights: ``[joints]`` per-joint stiffness ``w_j`` against moving (default ones).
+        regularization: ``lambda`` of the regulariser ``lambda/2 sum_j w_j |delta_j|^2`` towards the
+            reference pose. The literal default ``0`` removes it: the solve is then the notes' damped
+            least squares from the start pose (each Levenberg-Marquardt step is the smallest in the
+            ``W`` metric), and with fewer target rows than variables the solver works with an
+            ``m x m`` system (much faster). Any other value, or an array, keeps the term.
+        joint_weights: ``[joints]`` per-joint stiffness ``w_j`` against moving (default ones): the
+            damping metric ``W`` of ``LevenbergMarquardt`` (``(J^T J + lambda W) p = -J^T r``, the
+            notes' eq. 4.10) and the regulariser's weights.
         limits: :class:`~jaxanim.limits.EulerLimit` / :class:`~jaxanim.limits.SwingTwistLimit` s
             on joints' local rotations (frozen joints ignore theirs).
         limit_mode: ``"hard"``: every iterate satisfies the limits exactly (the limited joints
@@ -445,6 +457,10 @@ def solve_ik(
     )
     layout, targets, dtype = problem.layout, problem.targets, problem.dtype
     solver = solvers.LevenbergMarquardt() if solver is None else solver
+    if problem.var_weights is not None and isinstance(solver, solvers.LevenbergMarquardt):
+        if solver.weights is not None:
+            raise JaxanimError("joint_weights: the solver already has weights; give one or the other")
+        solver = eqx.tree_at(lambda s: s.weights, solver, problem.var_weights, is_leaf=lambda x: x is None)
     if position_tolerance is None:
         position_tolerance = 1e-5 * float(np.abs(np.asarray(skeleton.offsets)).sum())
     stop = None
