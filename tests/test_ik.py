@@ -336,3 +336,22 @@ def test_joint_weights_are_the_damping_metric():
     with pytest.raises(jaxanim.JaxanimError, match="joint_weights: the solver already has weights"):
         ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, joint_weights=w,
                     solver=solvers.LevenbergMarquardt(weights=jnp.ones(3 + 3 * skel.num_joints)))
+
+
+def test_float32_benchmark_batch_has_no_nan():
+    """The benchmark's 1024 random problems in float32 (x64 on, as users mix): no NaN anywhere, and
+    the solves succeed (the benchmark's success criterion is looser; this checks the solver's own)."""
+    shared_data_dir()
+    from benchmarks.ik import batched_solver, make_problems
+
+    skel, _ = _cmu()
+    skel32 = jax.tree.map(lambda x: x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x, skel)
+    targets, q0, t0 = make_problems(skel, 1024, seed=0, dtype=jnp.float32)
+    sol = batched_solver(skel32, position_tolerance=1e-3 * _height(skel), orientation_tolerance=0.01)(targets, q0, t0)
+    for name, x in (("rotations", sol.rotations), ("translations", sol.translations),
+                    ("position_errors", sol.position_errors), ("orientation_errors", sol.orientation_errors),
+                    *sol.stats.items()):
+        assert x.dtype != jnp.float64, name
+        assert bool(jnp.all(jnp.isfinite(x) | (x == jnp.inf))), name  # stats use inf for "not finite"
+        assert not bool(jnp.any(jnp.isnan(x))), name
+    assert float(jnp.mean(sol.success)) >= 0.99, float(jnp.mean(sol.success))
