@@ -210,6 +210,17 @@ def _site_rotations(skeleton, out, site_idx):
     return out.rotations[jnp.asarray(owner)]
 
 
+def _take_columns(x, cols: np.ndarray):
+    """``x[..., cols]`` for static ``cols`` as slices of contiguous runs (a gather on the minor
+    axis is slow on XLA:CPU under vmap)."""
+    runs, start = [], 0
+    for i in range(1, len(cols) + 1):
+        if i == len(cols) or cols[i] != cols[i - 1] + 1:
+            runs.append((int(cols[start]), int(cols[i - 1]) + 1))
+            start = i
+    return jnp.concatenate([x[..., a:b] for a, b in runs], axis=-1) if len(runs) != 1 else x[..., runs[0][0] : runs[0][1]]
+
+
 def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w, charts=(), limit_w=None):
     """Residual vector and its exact Jacobian w.r.t. ``y`` (one FK pass serves both)."""
     q, t, blocks, Jl = _pose(skeleton, layout, q_ref, t_ref, y, charts)
@@ -218,8 +229,11 @@ def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, 
     G = _jacobian_from_fk(skeleton, out.rotations, out.positions, out.end_site_positions, sites)  # [S(+1), 6, 3+3J]
     # columns w.r.t. the variables: root translation and E_j (J_l(delta_j) or a chart's) per free joint
     cols = np.asarray([3 + 3 * j + k for j in layout.free_joints for k in range(3)], dtype=np.int32)
-    Grot = G[..., cols].reshape(G.shape[0], 6, len(layout.free_joints), 3)
-    Grot = jnp.einsum("sakc,kcd->sakd", Grot, Jl).reshape(G.shape[0], 6, 3 * len(layout.free_joints))
+    Grot = _take_columns(G, cols).reshape(G.shape[0], 6, len(layout.free_joints), 3)
+    # [s, a, k, c] x [k, c, d] summed over c, written elementwise: as a dot_general it becomes a
+    # batch of tiny matrix products under vmap, several times slower on XLA:CPU
+    Grot = sum(Grot[..., c, None] * Jl[None, None, :, c, :] for c in range(3))
+    Grot = Grot.reshape(G.shape[0], 6, 3 * len(layout.free_joints))
     pos_all = out.site_positions()
     if layout.pin_idx is not None:
         # translate the body so the pinned site stays at pin_ref: every position moves by shift,
@@ -246,7 +260,8 @@ def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, 
             R_t = rot.quat_to_matrix(tgt.orientation.astype(y.dtype))
             e = rot.matrix_to_rotvec(R_sites[i] @ R_t.T)
             res.append(sw * e)
-            rows.append(sw * (_left_jacobian_inverse(e) @ Gcols[i, 3:]))
+            Li = _left_jacobian_inverse(e)
+            rows.append(sw * sum(Li[:, c, None] * Gcols[i, 3 + c][None, :] for c in range(3)))  # Li @ G_ang
     # regulariser towards the reference pose, per free joint: sqrt(w_j) log(R_j R_ref_j^T), which is
     # the variable block itself for unlimited joints (exponential coordinates around R_ref)
     n = y.shape[0]
