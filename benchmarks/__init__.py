@@ -2,9 +2,10 @@
 
 Each benchmark is a function ``run(config: BenchConfig) -> list[Table]`` in a module of this package;
 :data:`REGISTRY` maps the names accepted on the command line to those functions (imported lazily, so
-one benchmark's missing dependency never stops another). To add a benchmark (``ik``, ``oc``,
-``physics``), write ``benchmarks/<name>.py`` with such a function and add one
-:class:`BenchmarkSpec` line to :data:`REGISTRY`. Peers live in ``benchmarks/peers/`` and raise
+one benchmark's missing dependency never stops another): ``fk``, ``jacobian`` (:mod:`benchmarks.fk`)
+and ``ik`` (:mod:`benchmarks.ik`). To add a benchmark (``oc``, ``physics``), write
+``benchmarks/<name>.py`` with such a function and add one :class:`BenchmarkSpec` line to
+:data:`REGISTRY`. Peers live in ``benchmarks/peers/`` and raise
 :class:`benchmarks.peers.PeerUnavailable` when they cannot be imported; the benchmark then reports
 them as ``skipped: <reason>`` rows.
 """
@@ -116,6 +117,10 @@ REGISTRY: dict[str, BenchmarkSpec] = {
         BenchmarkSpec(
             "jacobian", "benchmarks.fk:run_jacobian",
             "6xN geometric Jacobian of 5 end effectors: jaxanim vs jacfwd, jacrev, Pinocchio",
+        ),
+        BenchmarkSpec(
+            "ik", "benchmarks.ik:run_ik",
+            "IK, 5 effectors (position + orientation), CMU skeleton: LM, optimistix, jaxopt, CCD, Pinocchio CLIK",
         ),
     )
 }

@@ -166,3 +166,76 @@ def test_quick_config_is_small():
     assert cfg.selects("anything")
     assert BenchConfig(only=("jaxanim*",)).selects("jaxanim (matrices)")
     assert not BenchConfig(only=("jaxanim",)).selects("jaxanim (matrices)")
+
+
+def test_ik_problems_are_reachable_and_evaluated_independently():
+    """``benchmarks.ik``: the targets are FK of the goal poses, the evaluator sees it, CLIK solves a few."""
+    import jax.numpy as jnp
+
+    from benchmarks import ik as bench_ik
+
+    data = shared_data_dir()
+    skel = bench_ik.load_skeleton(BenchConfig(data_dir=data))
+    ps = bench_ik.draw_problems(skel, 8)
+    assert ps.position_tolerance == pytest.approx(1e-3 * bench_ik.skeleton_height(skel))
+    goal = bench_ik.evaluate(skel, ps, ps.goal_rotations, ps.goal_translations)
+    assert goal.success.all() and goal.position_errors.max() < 1e-12 and goal.orientation_errors.max() < 1e-7
+    rest = bench_ik.evaluate(skel, ps, *ps.start(jnp.float64))
+    assert not rest.success.any()
+    targets, q, t = bench_ik.make_problems(skel, 8, dtype=jnp.float32)
+    assert [tg.site for tg in targets] == list(bench_ik.EFFECTORS)
+    assert targets[0].position.shape == (8, 3) and targets[0].orientation.dtype == jnp.float32
+    assert q.shape == (8, skel.num_joints, 4) and t.dtype == jnp.float32
+    # the same seed gives the same problems; Target input to the evaluator agrees with the ProblemSet
+    again = bench_ik.evaluate(skel, targets, ps.goal_rotations, ps.goal_translations)
+    assert again.success.all() and again.position_errors.max() < 1e-4  # float32 targets
+    nan_pose = np.where(np.arange(8)[:, None, None] == 0, np.nan, ps.goal_rotations)
+    assert bench_ik.evaluate(skel, ps, nan_pose, ps.goal_translations).success.tolist() == [False] + [True] * 7
+    from benchmarks.peers import PeerUnavailable, pinocchio_clik
+
+    try:
+        pin = pinocchio_clik.build_model(skel)
+    except PeerUnavailable:  # Pinocchio is not installed: the evaluator checks above still ran
+        return
+    q0s = pinocchio_clik.start_configurations(np.asarray(q[:3], np.float64), np.asarray(t[:3, 0], np.float64))
+    fids = [pin.frame_ids[s] for s in ps.sites]
+    qs, its = pinocchio_clik.clik_loop(
+        pin, q0s, fids, ps.positions[:3], ps.rotation_matrices[:3], damping=bench_ik.CLIK_DAMPING,
+        max_iterations=bench_ik.CLIK_MAX_ITERATIONS, position_tolerance=ps.position_tolerance,
+        orientation_tolerance=bench_ik.ORIENTATION_TOLERANCE,
+    )
+    rot, tr = pinocchio_clik.to_poses(qs, np.asarray(skel.offsets))
+    sub = bench_ik.evaluate(skel, ps.first(3), rot, tr)
+    assert sub.success.all() and (its > 0).all() and (its < bench_ik.CLIK_MAX_ITERATIONS).all(), its
+
+
+def test_quick_ik_report(tmp_path):
+    """``ik`` in quick mode (batch 8, float64): both own LM rows solve every problem; CLIK if installed."""
+    from benchmarks import ik as bench_ik
+
+    data = shared_data_dir()
+    out = tmp_path / "BENCHMARKS.md"
+    status = main([
+        "ik", "--quick", "--dtype", "float64", "--batches", "8", "--out", str(out), "--data-dir", str(data),
+        "--only", "jaxanim LM*,Pinocchio*", "--quiet",
+    ])
+    assert status == 0
+    text = out.read_text(encoding="utf-8")
+    assert "failed:" not in text and "not available" not in text
+    rows = _table_rows(text, "Inverse kinematics")
+    for impl in (bench_ik._LM_ADAPTIVE, bench_ik._LM_FIXED):
+        row = _row(rows, impl, "float64", 8)
+        assert row[7] == "100.0 %", f"success of {impl}: {row}"
+        p98_pos, p98_ori = (float(x) for x in row[6].split(" / "))
+        # well inside the success thresholds (1e-3 x height = 0.026 units, 0.01 rad)
+        assert p98_pos < 1e-3 and p98_ori < 1e-3, f"p98 errors of {impl}: {row[6]}"
+        assert row[5].endswith("s") and float(row[4]) > 0, row
+        assert row[9].startswith("iterations "), row[9]
+    assert not [r for r in rows if r[0].startswith(("optimistix", "jaxopt", "jaxanim CCD"))], "--only ignored"
+    try:
+        import pinocchio  # noqa: F401
+    except ImportError:
+        assert any(r[0] == bench_ik._PIN and r[3].startswith("skipped:") for r in rows)
+    else:
+        assert _row(rows, bench_ik._PIN, "float64", 8)[7] == "100.0 %"
+    assert "Target: ≥ 99.5 % success" in text and "Profile, own LM at batch 8" in text
