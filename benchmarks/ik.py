@@ -787,11 +787,10 @@ def _ik_residual_us(us: Callable, problems: ProblemSet, b: int) -> float | str:
         layout = ik._layout(skel, one, None, (), "free")
         q_ref = jnp.asarray(problems.start_rotations)
         t_ref = jnp.asarray(problems.start_translations)
-        reg_w = jnp.zeros((skel.num_joints,), jnp.float64)
         ys = jnp.asarray(np.random.default_rng(2).normal(size=(b, 3 + 3 * skel.num_joints)) * 0.3)
 
-        def res_jac(y, tg):
-            return ik._residual_and_jacobian(skel, layout, tg, q_ref, t_ref, None, y, reg_w)[:2]
+        def res_jac(y, tg):  # regularization=0: no regulariser rows (reg_w=None), as in the rows above
+            return ik._residual_and_jacobian(skel, layout, tg, q_ref, t_ref, None, y, None)[:2]
 
         return us(res_jac, ys, targets)
     except Exception as exc:  # informative only
@@ -808,7 +807,8 @@ def _profile_notes(config: BenchConfig, problems: ProblemSet, b: int, records: d
     J = skel.num_joints
     sites = problems.sites
     n = 3 + 3 * J
-    m = 6 * len(sites) + 3 * J  # the residual solve_ik builds: 6 per target + 3 regulariser rows per joint
+    m = 6 * len(sites)  # the residual solve_ik builds with regularization=0: 6 rows per target
+    m_reg = m + 3 * J  # ... and with a regulariser: 3 more rows per joint
     rng = np.random.default_rng(1)
     q = jnp.asarray(problems.goal_rotations[:b])
     t = jnp.asarray(problems.goal_translations[:b])
@@ -816,15 +816,15 @@ def _profile_notes(config: BenchConfig, problems: ProblemSet, b: int, records: d
     def lin_jac(q, t):  # FK + the [5, 6, 96] geometric Jacobian: the bulk of one residual + Jacobian
         return jacobian(skel, q, t, sites)
 
-    Jm = jnp.asarray(rng.normal(size=(b, m, n)))
-    r = jnp.asarray(rng.normal(size=(b, m)))
+    Jm = jnp.asarray(rng.normal(size=(b, m_reg, n)))
+    r = jnp.asarray(rng.normal(size=(b, m_reg)))
 
-    def normal_solve(Jm, r):  # what LevenbergMarquardt does per iteration with m >= n
+    def normal_solve(Jm, r):  # what LevenbergMarquardt does per iteration with m >= n (regulariser rows)
         A = Jm.T @ Jm + 1e-3 * jnp.eye(n, dtype=Jm.dtype)
         return jsl.cho_solve((jnp.linalg.cholesky(A), True), Jm.T @ r)
 
-    def short_solve(Jm, r):  # the m x m residual-space form on the 6 x 5 target rows only
-        Jt = Jm[: 6 * len(sites)]
+    def short_solve(Jm, r):  # the m x m residual-space form on the 6 x 5 target rows (regularization=0)
+        Jt = Jm[:m]
         A = Jt @ Jt.T + 1e-3 * jnp.eye(Jt.shape[0], dtype=Jm.dtype)
         return Jt.T @ jsl.cho_solve((jnp.linalg.cholesky(A), True), r[: Jt.shape[0]])
 
@@ -846,11 +846,12 @@ def _profile_notes(config: BenchConfig, problems: ProblemSet, b: int, records: d
                  f"Jacobian (jaxanim.jacobian) {t_jac:.0f} µs; ")
     else:
         line += f"FK + the 5-site geometric Jacobian (jaxanim.jacobian) {t_jac:.0f} µs ({t_res}); "
-    line += (f"the LM step on a {m}x{n} Jacobian (J^T J + λI, Cholesky, solve) {t_lin:.0f} µs; the same step "
-             f"in residual space on the 30 target rows only (30x30 Cholesky) {t_short:.0f} µs.")
+    line += (f"the LM step as solve_ik takes it with regularization=0, in residual space on the {m} target rows "
+             f"({m}x{m} Cholesky) {t_short:.0f} µs; the same step with regulariser rows ({m_reg}x{n} Jacobian, "
+             f"J^T J + λI, {n}x{n} Cholesky) would be {t_lin:.0f} µs.")
     if rec is not None and rec.iterations is not None:
         it = rec.iterations[0]
-        per = (t_res if isinstance(t_res, float) else t_jac) + t_lin
+        per = (t_res if isinstance(t_res, float) else t_jac) + t_short
         line += (f" An LM iteration is one residual + Jacobian and one step: ~{it:.0f} iterations (the mean) "
                  f"x {per:.0f} ≈ {it * per:.0f} µs, against {rec.us:.0f} µs measured; a vmapped while_loop "
                  f"runs every problem for the batch's slowest ({rec.iterations[1]} iterations).")
