@@ -144,7 +144,8 @@ class _Layout(eqx.Module):
     hard: bool = eqx.field(static=True, default=True)
 
 
-def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation, limits=(), limit_mode="hard") -> _Layout:
+def _check_targets(skeleton: Skeleton, targets, root_translation) -> tuple[tuple[Target, ...], tuple[int, ...]]:
+    """Validate one problem's targets and ``root_translation``; the targets and their site indices."""
     if isinstance(targets, Target):
         targets = (targets,)
     if not isinstance(targets, Sequence) or not targets or not all(isinstance(t, Target) for t in targets):
@@ -158,6 +159,11 @@ def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation, limits=(
         if t.orientation is not None:
             check_shape(f"targets[{t.site!r}].orientation", t.orientation, (4,))
         check_shape(f"targets[{t.site!r}].weight", t.weight, ())
+    return tuple(targets), site_idx
+
+
+def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation, limits=(), limit_mode="hard") -> _Layout:
+    targets, site_idx = _check_targets(skeleton, targets, root_translation)
     frozen_idx = {skeleton.index(n) for n in frozen}
     pin_idx = None if pin is None else skeleton.site_index(pin)
     free_joints = tuple(j for j in range(skeleton.num_joints) if j not in frozen_idx)

@@ -82,8 +82,7 @@ from . import rotations as rot
 from ._errors import JaxanimError, check_shape
 from ._types import Array, Float
 from .fk import forward_kinematics
-from .ik import IKSolution, Target
-from .jacobians import _site_indices
+from .ik import IKSolution, Target, _check_targets
 from .skeleton import Skeleton
 
 __all__ = ["solve_ik_ccd"]
@@ -261,22 +260,9 @@ def _evaluate(x, R_s, x_goal, R_goal, w, has_pos, has_ori, scale2):
 def _validate(skeleton, targets, frozen, root_translation, max_sweeps):
     if not isinstance(skeleton, Skeleton):
         raise JaxanimError(f"skeleton: expected a jaxanim.Skeleton, got {type(skeleton).__name__}")
-    if isinstance(targets, Target):
-        targets = (targets,)
-    if not isinstance(targets, Sequence) or not targets or not all(isinstance(t, Target) for t in targets):
-        raise JaxanimError("targets: expected a non-empty sequence of jaxanim.ik.Target")
-    targets = tuple(targets)
-    if root_translation not in ("free", "fixed"):
-        raise JaxanimError(f"root_translation: expected 'free' or 'fixed', got {root_translation!r}")
+    targets, site_idx = _check_targets(skeleton, targets, root_translation)
     if isinstance(max_sweeps, bool) or not isinstance(max_sweeps, (int, np.integer)) or max_sweeps < 0:
         raise JaxanimError(f"max_sweeps: expected a non-negative int, got {max_sweeps!r}")
-    site_idx = _site_indices(skeleton, [t.site for t in targets])
-    for t in targets:  # one problem: no leading axes (vmap over them instead)
-        if t.position is not None:
-            check_shape(f"targets[{t.site!r}].position", t.position, (3,))
-        if t.orientation is not None:
-            check_shape(f"targets[{t.site!r}].orientation", t.orientation, (4,))
-        check_shape(f"targets[{t.site!r}].weight", t.weight, ())
     if isinstance(frozen, str):
         frozen = (frozen,)
     frozen_idx = {skeleton.index(n) for n in frozen}

@@ -119,13 +119,15 @@ def limited_problem():
     out = jaxanim.forward_kinematics(skel, q_goal, t)
     targets = (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4]), weight=1.0),)
     kw = dict(limits=limits, root_translation="fixed", frozen=("leg", "spine", "head", "root"))
-    return skel, targets, q, t, kw
+    # the hard-limit and the unlimited solutions, shared by the tests (each solve_ik call compiles)
+    hard = ik.solve_ik(skel, targets, q, t, regularization=1e-3, **kw)
+    free = ik.solve_ik(skel, targets, q, t, regularization=1e-3, **{**kw, "limits": ()})
+    return skel, targets, q, t, kw, hard, free
 
 
 def test_hard_limits_reach_the_bounded_optimum_of_scipy(limited_problem):
     """The constrained optimum equals scipy's bounded trust-region solver on the same residual."""
-    skel, targets, q, t, kw = limited_problem
-    sol = ik.solve_ik(skel, targets, q, t, regularization=1e-3, **kw)
+    skel, targets, q, t, kw, sol, free = limited_problem
     assert sol.result == solvers.RESULTS.successful
     assert not bool(sol.success)  # the goal is out of reach within the limits
     v = limit_violation(skel, kw["limits"], sol.rotations)
@@ -141,14 +143,12 @@ def test_hard_limits_reach_the_bounded_optimum_of_scipy(limited_problem):
     q_ref, _ = problem.pose(jnp.asarray(ref.x))
     assert float(jnp.max(rot.quat_distance(sol.rotations, q_ref))) < 1e-6
     # some limit is active: without limits the cost is lower and the limits are broken
-    free = ik.solve_ik(skel, targets, q, t, regularization=1e-3, **{**kw, "limits": ()})
     assert float(free.stats["cost"]) < ref.cost - 1e-6
     assert float(jnp.max(limit_violation(skel, kw["limits"], free.rotations))) > 1e-3
 
 
 def test_soft_limits_approach_the_hard_solution(limited_problem):
-    skel, targets, q, t, kw = limited_problem
-    hard = ik.solve_ik(skel, targets, q, t, regularization=1e-3, **kw)
+    skel, targets, q, t, kw, hard, free = limited_problem
 
     def soft(w):
         return ik.solve_ik(skel, targets, q, t, regularization=1e-3, limit_mode="soft", limit_weight=w, **kw)
@@ -158,7 +158,6 @@ def test_soft_limits_approach_the_hard_solution(limited_problem):
     assert np.all(np.diff(np.asarray(viol)) < 0), viol  # stiffer penalty, smaller violation
     assert float(viol[-1]) < 1e-4  # ~1/weight: 1.5e-5 here
     assert float(jnp.max(rot.quat_distance(sols.rotations[-1], hard.rotations))) < 1e-4
-    free = ik.solve_ik(skel, targets, q, t, regularization=1e-3, **{**kw, "limits": ()})
     np.testing.assert_allclose(sols.stats["cost"][0], free.stats["cost"], rtol=1e-8)
 
 
