@@ -14,3 +14,10 @@ from .least_squares import (
     OptimistixSolver as OptimistixSolver,
     least_squares as least_squares,
 )
+from .lqr import (
+    LQRSolution as LQRSolution,
+    RiccatiSolution as RiccatiSolution,
+    care as care,
+    dare as dare,
+    lqr as lqr,
+)

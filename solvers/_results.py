@@ -29,6 +29,18 @@ class RESULTS(eqx.Enumeration):
         "LevenbergMarquardt (damping), add regularisation residuals, or remove redundant "
         "variables."
     )
+    not_positive_definite = (
+        "The control Hessian Q_uu = R_t + B_t^T P_{t+1} B_t of the LQ subproblem is not positive "
+        "definite at some time step t, or a non-finite value (NaN or inf) appeared, so there is no "
+        "unique minimiser over the controls: make R_t positive definite, regularise (add mu * I to "
+        "R_t), and check that the inputs are finite."
+    )
+    no_stabilising_solution = (
+        "No stabilising solution of the algebraic Riccati equation was found: (A, B) is not "
+        "stabilisable, an unstable mode is not seen by the cost (Q, after removing the cross term "
+        "S, must weight every unstable mode), R is not positive definite, or the inputs are not "
+        "finite. Check rank [A - lambda I, B] = n for every unstable eigenvalue lambda of A."
+    )
 
 
 class Solution(eqx.Module):
