@@ -216,17 +216,6 @@ def _site_rotations(skeleton, out, site_idx):
     return out.rotations[jnp.asarray(owner)]
 
 
-def _take_columns(x, cols: np.ndarray):
-    """``x[..., cols]`` for static ``cols`` as slices of contiguous runs (a gather on the minor
-    axis is slow on XLA:CPU under vmap)."""
-    runs, start = [], 0
-    for i in range(1, len(cols) + 1):
-        if i == len(cols) or cols[i] != cols[i - 1] + 1:
-            runs.append((int(cols[start]), int(cols[i - 1]) + 1))
-            start = i
-    return jnp.concatenate([x[..., a:b] for a, b in runs], axis=-1) if len(runs) != 1 else x[..., runs[0][0] : runs[0][1]]
-
-
 def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, reg_w, charts=(), limit_w=None):
     """Residual vector and its exact Jacobian w.r.t. ``y`` (one FK pass serves both)."""
     q, t, blocks, Jl = _pose(skeleton, layout, q_ref, t_ref, y, charts)
@@ -235,7 +224,7 @@ def _residual_and_jacobian(skeleton, layout, targets, q_ref, t_ref, pin_ref, y, 
     G = _jacobian_from_fk(skeleton, out.rotations, out.positions, out.end_site_positions, sites)  # [S(+1), 6, 3+3J]
     # columns w.r.t. the variables: root translation and E_j (J_l(delta_j) or a chart's) per free joint
     cols = np.asarray([3 + 3 * j + k for j in layout.free_joints for k in range(3)], dtype=np.int32)
-    Grot = _take_columns(G, cols).reshape(G.shape[0], 6, len(layout.free_joints), 3)
+    Grot = G[..., cols].reshape(G.shape[0], 6, len(layout.free_joints), 3)
     # [s, a, k, c] x [k, c, d] summed over c, written elementwise: as a dot_general it becomes a
     # batch of tiny matrix products under vmap, several times slower on XLA:CPU
     Grot = sum(Grot[..., c, None] * Jl[None, None, :, c, :] for c in range(3))
