@@ -21,3 +21,4 @@ from .lqr import (
     dare as dare,
     lqr as lqr,
 )
+from .ilqr import TrajectorySolution as TrajectorySolution, ddp as ddp, ilqr as ilqr

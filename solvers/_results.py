@@ -35,6 +35,12 @@ class RESULTS(eqx.Enumeration):
         "unique minimiser over the controls: make R_t positive definite, regularise (add mu * I to "
         "R_t), and check that the inputs are finite."
     )
+    no_descent = (
+        "No acceptable step was found: the regularisation of the control Hessian Q_uu reached its "
+        "maximum while the backward pass kept failing or the line search rejected every step "
+        "size. Check that the cost is bounded below and that `dynamics`/`cost` are smooth and "
+        "finite near the trajectory, or start from a better `us_init`."
+    )
     no_stabilising_solution = (
         "No stabilising solution of the algebraic Riccati equation was found: (A, B) is not "
         "stabilisable, an unstable mode is not seen by the cost (Q, after removing the cross term "

@@ -1,0 +1,274 @@
+"""Tests of solvers.ilqr and solvers.ddp: LQ exactness against solvers.lqr, the Crocoddyl unicycle
+reference, vmap against a loop (with a diverging element), fixed-step against adaptive mode, and
+bad input."""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import solvers
+from solvers import RESULTS
+
+from .conftest import shared_data_dir
+
+_ATOL_LQ = 1e-9  # iLQR/DDP after one iteration vs LQR
+_RTOL_COST_REF = 1e-6  # cost vs Crocoddyl
+_ATOL_TRAJ_REF = 1e-5  # trajectories vs Crocoddyl
+
+SOLVERS = {"ilqr": solvers.ilqr, "ddp": solvers.ddp}
+
+
+# --------------------------------------------------------------------------------------------
+# LQ problem: iLQR/DDP must equal LQR after one iteration.
+# --------------------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=None)
+def _lq_data(T=8, n=3, m=2):
+    rng = np.random.default_rng(0)
+    A = np.eye(n) + 0.3 * rng.standard_normal((T, n, n))
+    B = rng.standard_normal((T, n, m))
+    c = 0.1 * rng.standard_normal((T, n))
+    G = rng.standard_normal((T, n, n))
+    Q = G @ np.swapaxes(G, 1, 2) / n
+    H = rng.standard_normal((T, m, m))
+    R = H @ np.swapaxes(H, 1, 2) / m + np.eye(m)
+    S = 0.1 * rng.standard_normal((T, m, n))
+    q = rng.standard_normal((T, n))
+    r = rng.standard_normal((T, m))
+    QT = np.eye(n) * 2.0
+    qT = rng.standard_normal(n)
+    x0 = rng.standard_normal(n)
+    return dict(A=A, B=B, c=c, Q=Q, R=R, S=S, q=q, r=r, QT=QT, qT=qT, x0=x0)
+
+
+def _lq_dynamics(x, u, t, a):
+    return a["A"][t] @ x + a["B"][t] @ u + a["c"][t]
+
+
+def _lq_cost(x, u, t, a):
+    return (
+        0.5 * x @ a["Q"][t] @ x + 0.5 * u @ a["R"][t] @ u + u @ a["S"][t] @ x + a["q"][t] @ x + a["r"][t] @ u
+    )
+
+
+def _lq_terminal(x, a):
+    return 0.5 * x @ a["QT"] @ x + a["qT"] @ x
+
+
+@pytest.mark.parametrize("name", ["ilqr", "ddp"])
+def test_lq_one_iteration_equals_lqr(name):
+    d = {k: jnp.asarray(v) for k, v in _lq_data().items()}
+    ref = solvers.lqr(d["A"], d["B"], d["Q"], d["R"], d["QT"], d["x0"], S=d["S"], q=d["q"], r=d["r"], qT=d["qT"], c=d["c"])
+    assert ref.result == RESULTS.successful
+    us0 = jnp.zeros(ref.us.shape)
+    solve = SOLVERS[name]
+    one = solve(_lq_dynamics, _lq_cost, d["x0"], us0, terminal_cost=_lq_terminal, args=d, max_steps=1)
+    for field in ("xs", "us", "Ks", "ks", "cost"):
+        np.testing.assert_allclose(
+            getattr(one, field), getattr(ref, field), atol=_ATOL_LQ, rtol=0, err_msg=f"{name}: {field}"
+        )
+    assert one.result == RESULTS.max_steps_reached  # one step taken, convergence not yet confirmed
+    if name == "ddp":  # (DDP's adaptive loop is covered by the unicycle test; saves a compile)
+        return
+    full = solve(_lq_dynamics, _lq_cost, d["x0"], us0, terminal_cost=_lq_terminal, args=d)
+    assert full.result == RESULTS.successful
+    assert int(full.stats["num_steps"]) == 2  # the step, then the confirmation
+    np.testing.assert_allclose(full.us, ref.us, atol=_ATOL_LQ, rtol=0, err_msg=f"{name}: us")
+    assert float(full.stats["grad_norm"]) < 1e-9
+
+
+# --------------------------------------------------------------------------------------------
+# Crocoddyl unicycle reference (shared data).
+# --------------------------------------------------------------------------------------------
+
+
+def _unicycle_dynamics(x, u, t, a):
+    dt = a["dt"]
+    return jnp.stack([x[0] + dt * u[0] * jnp.cos(x[2]), x[1] + dt * u[0] * jnp.sin(x[2]), x[2] + dt * u[1]])
+
+
+def _unicycle_cost(x, u, t, a):
+    # README / ddp_refs.json: 0.5 * (w0^2 |x|^2 + w1^2 |u|^2) per knot, not multiplied by dt.
+    w = a["w"]
+    return 0.5 * (w[0] ** 2 * (x @ x) + w[1] ** 2 * (u @ u))
+
+
+def _unicycle_terminal(x, a):
+    return 0.5 * a["w"][0] ** 2 * (x @ x)
+
+
+def _unicycle_args(dt=0.1, w=(10.0, 1.0)):
+    return dict(dt=jnp.asarray(dt), w=jnp.asarray(w))
+
+
+def _unicycle_ref():
+    refs = json.loads((shared_data_dir() / "ddp" / "ddp_refs.json").read_text())
+    return next(p for p in refs["problems"] if p["model"] == "unicycle")
+
+
+@pytest.mark.parametrize("name", ["ilqr", "ddp"])
+def test_unicycle_matches_crocoddyl(name):
+    ref = _unicycle_ref()
+    args = _unicycle_args(ref["dt"], ref["cost_weights"])
+    sol = SOLVERS[name](
+        _unicycle_dynamics,
+        _unicycle_cost,
+        jnp.asarray(ref["x0"]),
+        jnp.zeros((ref["T"], 2)),
+        terminal_cost=_unicycle_terminal,
+        args=args,
+    )
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    np.testing.assert_allclose(sol.cost, ref["optimal_cost"], rtol=_RTOL_COST_REF, err_msg=f"{name}: cost")
+    np.testing.assert_allclose(sol.xs, np.asarray(ref["xs"]), atol=_ATOL_TRAJ_REF, rtol=0, err_msg=f"{name}: xs")
+    np.testing.assert_allclose(sol.us, np.asarray(ref["us"]), atol=_ATOL_TRAJ_REF, rtol=0, err_msg=f"{name}: us")
+    # Cost history: starts at the initial cost, never increases, ends at the final cost.
+    hist = np.asarray(sol.stats["cost_history"])
+    assert np.all(np.diff(hist) <= 1e-12 * hist[0]), "cost_history: increased"
+    np.testing.assert_allclose(hist[-1], sol.cost, rtol=0, atol=0, err_msg="cost_history: padding")
+    # At the optimum the policy reproduces the controls along the trajectory.
+    u_policy = jnp.einsum("tmn,tn->tm", sol.Ks, sol.xs[:-1]) + sol.ks
+    np.testing.assert_allclose(u_policy, sol.us, atol=_ATOL_TRAJ_REF, rtol=0, err_msg=f"{name}: Ks, ks")
+
+
+# --------------------------------------------------------------------------------------------
+# Batching and modes (own unicycle instance: no shared data needed).
+# --------------------------------------------------------------------------------------------
+
+_T_SMALL = 20
+
+
+def _solve_unicycle(x0, fixed_steps=False, max_steps=40):
+    return solvers.ilqr(
+        _unicycle_dynamics,
+        _unicycle_cost,
+        x0,
+        jnp.zeros((_T_SMALL, 2)),
+        terminal_cost=_unicycle_terminal,
+        args=_unicycle_args(),
+        max_steps=max_steps,
+        fixed_steps=fixed_steps,
+    )
+
+
+def _fields(sol):
+    return dict(xs=sol.xs, us=sol.us, cost=sol.cost, result=sol.result._value, num_steps=sol.stats["num_steps"])
+
+
+def test_vmap_equals_loop_with_diverging_element():
+    x0s = jnp.array([[-1.0, -1.0, 1.0], [0.5, -0.3, -0.2], [jnp.nan, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    batched = jax.vmap(lambda x0: _fields(_solve_unicycle(x0)))(x0s)
+    for i in range(x0s.shape[0]):
+        single = _fields(_solve_unicycle(x0s[i]))
+        if i == 2:
+            continue
+        for key, value in single.items():
+            np.testing.assert_allclose(batched[key][i], value, atol=1e-10, rtol=0, err_msg=f"element {i}: {key}")
+    # Element 0 is the reference problem (converges); 1 and 3 converge only linearly (the lateral
+    # offset is nearly uncontrollable), so they may still be running at max_steps. Only the NaN
+    # element is nonfinite, and it did not abort the batch.
+    results = [int(r) for r in batched["result"]]
+    assert results[0] == RESULTS.successful._value
+    assert results[2] == RESULTS.nonfinite._value
+    assert all(results[i] in (RESULTS.successful._value, RESULTS.max_steps_reached._value) for i in (1, 3))
+    assert np.all(np.isfinite(np.asarray(batched["cost"])[[0, 1, 3]]))
+
+
+def test_fixed_steps_equals_adaptive():
+    x0 = jnp.array([-1.0, -1.0, 1.0])
+    adaptive = _solve_unicycle(x0)
+    fixed = _solve_unicycle(x0, fixed_steps=True)
+    assert adaptive.result == RESULTS.successful
+    assert fixed.result == RESULTS.successful
+    assert int(fixed.stats["num_steps"]) == int(adaptive.stats["num_steps"]) < 40
+    for field in ("xs", "us", "Ks", "ks", "cost"):
+        np.testing.assert_allclose(getattr(fixed, field), getattr(adaptive, field), atol=1e-12, rtol=0, err_msg=field)
+    np.testing.assert_allclose(
+        fixed.stats["cost_history"], adaptive.stats["cost_history"], atol=1e-12, rtol=0, err_msg="cost_history"
+    )
+
+
+def test_throw_raises_on_failure():
+    with pytest.raises(eqx.EquinoxRuntimeError):
+        solvers.ilqr(
+            _unicycle_dynamics,
+            _unicycle_cost,
+            jnp.array([jnp.nan, 0.0, 0.0]),
+            jnp.zeros((_T_SMALL, 2)),
+            terminal_cost=_unicycle_terminal,
+            args=_unicycle_args(),
+            throw=True,
+        )
+
+
+def test_bad_input_raises():
+    args = _unicycle_args()
+    us = jnp.zeros((_T_SMALL, 2))
+    with pytest.raises(ValueError, match=r"x0: expected shape \(n,\)"):
+        solvers.ilqr(_unicycle_dynamics, _unicycle_cost, jnp.zeros((3, 1)), us, args=args)
+    with pytest.raises(ValueError, match=r"us_init: expected shape \(T, m\)"):
+        solvers.ilqr(_unicycle_dynamics, _unicycle_cost, jnp.zeros(3), jnp.zeros(4), args=args)
+    with pytest.raises(ValueError, match=r"dynamics: expected .* shape \(n,\) = \(3,\), got \(2,\)"):
+        solvers.ilqr(lambda x, u, t, a: x[:2], _unicycle_cost, jnp.zeros(3), us, args=args)
+    with pytest.raises(ValueError, match=r"cost: expected .* scalar"):
+        solvers.ilqr(_unicycle_dynamics, lambda x, u, t, a: x, jnp.zeros(3), us, args=args)
+    with pytest.raises(ValueError, match=r"bounds: expected u_min of shape \(m,\) = \(2,\), got \(3,\)"):
+        solvers.ilqr(_unicycle_dynamics, _unicycle_cost, jnp.zeros(3), us, args=args, bounds=(jnp.zeros(3), 1.0))
+    with pytest.raises(ValueError, match="u_min <= u_max"):
+        solvers.ilqr(_unicycle_dynamics, _unicycle_cost, jnp.zeros(3), us, args=args, bounds=(1.0, -1.0))
+
+
+# --------------------------------------------------------------------------------------------
+# Box-DDP.
+# --------------------------------------------------------------------------------------------
+
+
+def test_box_ddp_unicycle_against_lbfgsb_and_clipping():
+    scipy_optimize = pytest.importorskip("scipy.optimize")
+    x0 = jnp.array([-1.0, -1.0, 1.0])
+    args = _unicycle_args()
+    lo, hi = jnp.array([-2.0, -1.5]), jnp.array([2.0, 1.5])
+    sol = solvers.ddp(
+        _unicycle_dynamics, _unicycle_cost, x0, jnp.zeros((_T_SMALL, 2)), terminal_cost=_unicycle_terminal,
+        args=args, bounds=(lo, hi),
+    )
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    us = np.asarray(sol.us)
+    assert np.all(us >= np.asarray(lo)) and np.all(us <= np.asarray(hi)), "us: outside the bounds"
+    assert np.any(us == np.asarray(hi)) or np.any(us == np.asarray(lo)), "us: no bound active"
+    assert float(sol.stats["grad_norm"]) < 1e-6
+
+    @jax.jit
+    def total(u):
+        def step(x, data):
+            u_t, t = data
+            return _unicycle_dynamics(x, u_t, t, args), _unicycle_cost(x, u_t, t, args)
+
+        xT, costs = jax.lax.scan(step, x0, (u, jnp.arange(_T_SMALL)))
+        return jnp.sum(costs) + _unicycle_terminal(xT, args)
+
+    value_and_grad = jax.jit(jax.value_and_grad(lambda u: total(u.reshape(_T_SMALL, 2))))
+    np.testing.assert_allclose(total(sol.us), sol.cost, rtol=1e-12, err_msg="cost")
+    # Independent reference: L-BFGS-B on the single-shooting problem.
+    ref = scipy_optimize.minimize(
+        lambda u: tuple(np.asarray(v) for v in value_and_grad(jnp.asarray(u))),
+        np.zeros(2 * _T_SMALL),
+        jac=True,
+        method="L-BFGS-B",
+        bounds=list(zip(np.tile(np.asarray(lo), _T_SMALL), np.tile(np.asarray(hi), _T_SMALL))),
+        options=dict(ftol=1e-15, gtol=1e-10, maxiter=2000),
+    )
+    np.testing.assert_allclose(sol.cost, ref.fun, rtol=1e-8, err_msg="cost vs L-BFGS-B")
+    assert float(sol.cost) <= ref.fun + 1e-9 * abs(ref.fun)
+    # Better than clipping the unconstrained optimum.
+    free = _solve_unicycle(x0)
+    clipped = jnp.clip(free.us, lo[None], hi[None])
+    assert float(sol.cost) < float(total(clipped))
