@@ -69,6 +69,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PyTree
 
 from ._results import RESULTS
+from ._checks import _fmt
 
 __all__ = ["TrajectorySolution", "ddp", "ilqr"]
 
@@ -127,11 +128,6 @@ class TrajectorySolution(eqx.Module):
 # --------------------------------------------------------------------------------------------
 # Small helpers.
 # --------------------------------------------------------------------------------------------
-
-
-def _fmt(shape) -> str:
-    shape = tuple(shape)
-    return "(" + ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
 def _as_float(name: str, x) -> Array:

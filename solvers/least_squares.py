@@ -69,6 +69,7 @@ from equinox import AbstractVar
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PyTree
 
 from ._results import RESULTS, Solution
+from ._checks import _fmt
 
 __all__ = [
     "AbstractLeastSquaresSolver",
@@ -987,11 +988,6 @@ class JaxoptSolver(_AbstractAdapter):
 # --------------------------------------------------------------------------------------------
 # The public function.
 # --------------------------------------------------------------------------------------------
-
-
-def _fmt(shape) -> str:
-    shape = tuple(shape)
-    return "(" + ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
 def least_squares(

@@ -79,6 +79,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._results import RESULTS
+from ._checks import _fmt
 
 __all__ = ["LQRSolution", "RiccatiSolution", "care", "dare", "lqr"]
 
@@ -152,11 +153,6 @@ class RiccatiSolution(eqx.Module):
 # --------------------------------------------------------------------------------------------
 # Input checks (Python, before tracing).
 # --------------------------------------------------------------------------------------------
-
-
-def _fmt(shape) -> str:
-    shape = tuple(shape)
-    return "(" + ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
 def _as_float(name: str, x) -> Array:
