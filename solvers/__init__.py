@@ -1,4 +1,4 @@
-"""solvers: generic numerics (least squares, LQR, iLQR, DDP, batching helpers).
+"""solvers: generic numerics (least squares, LQR, iLQR, DDP, MPC, test problems, batching helpers).
 
 This package knows nothing of skeletons and never imports ``jaxanim``.
 """
@@ -22,3 +22,5 @@ from .lqr import (
     lqr as lqr,
 )
 from .ilqr import TrajectorySolution as TrajectorySolution, ddp as ddp, ilqr as ilqr
+from .mpc import MPCSolution as MPCSolution, mpc as mpc, mpc_step as mpc_step, shift_controls as shift_controls
+from . import problems as problems

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import solvers
-from solvers import RESULTS
+from solvers import RESULTS, problems
 
 from .conftest import shared_data_dir
 
@@ -90,23 +90,16 @@ def test_lq_one_iteration_equals_lqr(name):
 # --------------------------------------------------------------------------------------------
 
 
-def _unicycle_dynamics(x, u, t, a):
-    dt = a["dt"]
-    return jnp.stack([x[0] + dt * u[0] * jnp.cos(x[2]), x[1] + dt * u[0] * jnp.sin(x[2]), x[2] + dt * u[1]])
-
-
-def _unicycle_cost(x, u, t, a):
-    # README / ddp_refs.json: 0.5 * (w0^2 |x|^2 + w1^2 |u|^2) per knot, not multiplied by dt.
-    w = a["w"]
-    return 0.5 * (w[0] ** 2 * (x @ x) + w[1] ** 2 * (u @ u))
-
-
-def _unicycle_terminal(x, a):
-    return 0.5 * a["w"][0] ** 2 * (x @ x)
+# The unicycle of solvers.problems is Crocoddyl's ActionModelUnicycle: cost
+# 0.5 * (w0^2 |x|^2 + w1^2 |u|^2) per knot (README of ddp_refs.json: not multiplied by dt).
+_UNICYCLE = problems.unicycle()
+_unicycle_dynamics = _UNICYCLE.dynamics
+_unicycle_cost = _UNICYCLE.cost
+_unicycle_terminal = _UNICYCLE.terminal_cost
 
 
 def _unicycle_args(dt=0.1, w=(10.0, 1.0)):
-    return dict(dt=jnp.asarray(dt), w=jnp.asarray(w))
+    return problems.unicycle(dt=dt, state_weight=w[0], control_weight=w[1]).args
 
 
 def _unicycle_ref():
