@@ -265,3 +265,42 @@ def test_box_ddp_unicycle_against_lbfgsb_and_clipping():
     free = _solve_unicycle(x0)
     clipped = jnp.clip(free.us, lo[None], hi[None])
     assert float(sol.cost) < float(total(clipped))
+
+
+# --------------------------------------------------------------------------------------------
+# A cost that is not convex in u.
+# --------------------------------------------------------------------------------------------
+
+
+def _nc_dynamics(x, u, t, a):
+    return x + 0.1 * jnp.concatenate([u, u[:1] ** 2])
+
+
+def _nc_cost(x, u, t, a):
+    return 0.5 * x @ x + (u[0] ** 2 - 1.0) ** 2  # a double well in u: l_uu = -4 at u = 0
+
+
+def _nc_terminal(x, a):
+    return 5.0 * x @ x
+
+
+@pytest.mark.parametrize("name", ["ilqr", "ddp"])
+def test_cost_not_convex_in_u_is_regularised(name):
+    T = 10
+    x0 = jnp.array([1.0, -0.5])
+    sol = SOLVERS[name](_nc_dynamics, _nc_cost, x0, jnp.zeros((T, 1)), terminal_cost=_nc_terminal, max_steps=100)
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    assert np.all(np.isfinite(np.asarray(sol.us))) and np.isfinite(float(sol.cost))
+    assert float(sol.cost) < float(sol.stats["cost_history"][0])
+
+    def total(us):
+        def step(x, ut):
+            return _nc_dynamics(x, ut[0], ut[1], None), _nc_cost(x, ut[0], ut[1], None)
+
+        xT, costs = jax.lax.scan(step, x0, (us.reshape(T, 1), jnp.arange(T)))
+        return jnp.sum(costs) + _nc_terminal(xT, None)
+
+    # A local minimum of the single-shooting cost: zero gradient, positive-definite Hessian.
+    np.testing.assert_allclose(total(sol.us.ravel()), sol.cost, rtol=1e-12)
+    assert float(jnp.max(jnp.abs(jax.grad(total)(sol.us.ravel())))) < 1e-4
+    assert float(jnp.min(jnp.linalg.eigvalsh(jax.hessian(total)(sol.us.ravel())))) > 0
