@@ -64,12 +64,12 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PyTree
 
 from ._results import RESULTS
 from ._checks import _fmt
+from ._linalg import cho_solve, cholesky, mm
 
 __all__ = ["TrajectorySolution", "ddp", "ilqr"]
 
@@ -197,7 +197,7 @@ class _Problem(eqx.Module):
 
         def step(x, data):
             xb, ub, K, k, t = data
-            u = self.clip(ub + alpha * k + K @ (x - xb))
+            u = self.clip(ub + alpha * k + mm(K, x - xb))
             return self.f(x, u, t, args), (x, u, self.l(x, u, t, args))
 
         xT, (xs_new, us_new, ls) = jax.lax.scan(step, x0, (xs[:-1], us, Ks, ks, jnp.arange(T)))
@@ -228,7 +228,7 @@ class _Problem(eqx.Module):
 
         def step(lam, data):
             A, B, lx, lu = data
-            return lx + A.T @ lam, lu + B.T @ lam
+            return lx + mm(A.T, lam), lu + mm(B.T, lam)
 
         _, g = jax.lax.scan(step, ex["lTx"], (ex["A"], ex["B"], ex["lx"], ex["lu"]), reverse=True)
         return g
@@ -250,34 +250,34 @@ class _Problem(eqx.Module):
         def step(carry, data):
             Vx, Vxx = carry
             A, B, lx, lu, lxx, luu, lux, x, u, t = data
-            Qx = lx + A.T @ Vx
-            Qu = lu + B.T @ Vx
-            VA = Vxx @ A
-            Qxx = lxx + A.T @ VA
-            Quu = luu + B.T @ Vxx @ B
-            Qux = lux + B.T @ VA
+            Qx = lx + mm(A.T, Vx)
+            Qu = lu + mm(B.T, Vx)
+            VA = mm(Vxx, A)
+            Qxx = lxx + mm(A.T, VA)
+            Quu = luu + mm(B.T, mm(Vxx, B))
+            Qux = lux + mm(B.T, VA)
             if self.second_order:
                 z = jnp.concatenate([x, u])
-                H = jax.hessian(lambda z_: Vx @ self.f(z_[:n], z_[n:], t, args))(z)
+                H = jax.hessian(lambda z_: jnp.sum(Vx * self.f(z_[:n], z_[n:], t, args)))(z)
                 H = _sym(H)
                 Qxx = Qxx + H[:n, :n]
                 Quu = Quu + H[n:, n:]
                 Qux = Qux + H[n:, :n]
             Quu = _sym(Quu)
             H = Quu + mu * eye
-            L = jnp.linalg.cholesky(H)
+            L = cholesky(H)
             ok = _all_finite(L)
             if self.bounded:
                 k, free, L_free = _box_qp(jnp.where(ok, H, eye), Qu, self.lower - u, self.upper - u)
-                K = -jsl.cho_solve((L_free, True), jnp.where(free[:, None], Qux, 0))
+                K = -cho_solve(L_free, jnp.where(free[:, None], Qux, 0))
                 K = jnp.where(free[:, None], K, 0)  # clamped directions get no feedback
             else:
-                Kk = -jsl.cho_solve((L, True), jnp.concatenate([Qux, Qu[:, None]], axis=1))
+                Kk = -cho_solve(L, jnp.concatenate([Qux, Qu[:, None]], axis=1))
                 K, k = Kk[:, :n], Kk[:, n]
-            Vx_new = Qx + K.T @ (Quu @ k) + K.T @ Qu + Qux.T @ k
-            Vxx_new = _sym(Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K)
-            dV1 = k @ Qu
-            dV2 = 0.5 * (k @ (Quu @ k))
+            Vx_new = Qx + mm(K.T, mm(Quu, k) + Qu) + mm(Qux.T, k)
+            Vxx_new = _sym(Qxx + mm(K.T, mm(Quu, K) + Qux) + mm(Qux.T, K))
+            dV1 = jnp.sum(k * Qu)
+            dV2 = 0.5 * jnp.sum(k * mm(Quu, k))
             return (Vx_new, Vxx_new), (K, k, dV1, dV2, ok, jnp.max(jnp.diagonal(Quu)))
 
         data = (ex["A"], ex["B"], ex["lx"], ex["lu"], ex["lxx"], ex["luu"], ex["lux"], xs[:-1], us, jnp.arange(T))
@@ -313,7 +313,7 @@ def _box_qp(H, g, lo, hi, max_iter: int = 32):
         return ~clamped, grad
 
     def factor(free):
-        return jnp.linalg.cholesky(jnp.where(free[:, None] & free[None, :], H, eye))
+        return cholesky(jnp.where(free[:, None] & free[None, :], H, eye))
 
     def cond(c):
         i, _, done = c
@@ -323,7 +323,7 @@ def _box_qp(H, g, lo, hi, max_iter: int = 32):
         i, k, _ = c
         free, grad = free_of(k)
         L = factor(free)
-        d = -jsl.cho_solve((L, True), jnp.where(free, grad, 0))
+        d = -cho_solve(L, jnp.where(free, grad, 0))
         d = jnp.where(free, d, 0)
         fk = f(k)
         cands = jnp.clip(k[None, :] + alphas[:, None] * d[None, :], lo[None, :], hi[None, :])

@@ -80,6 +80,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._results import RESULTS
 from ._checks import _fmt
+from ._linalg import cho_solve, cholesky, mm
 
 __all__ = ["LQRSolution", "RiccatiSolution", "care", "dare", "lqr"]
 
@@ -317,20 +318,20 @@ def _lqr(A, B, Q, R, QT, x0, S, q, r, qT, c, throw) -> LQRSolution:
     def backward(carry, data):
         P, p, v = carry  # value function of step t+1
         A_t, B_t, Q_t, R_t, S_t, q_t, r_t, c_t = data
-        z = P @ c_t + p
-        PA = P @ A_t
-        Quu = _sym(R_t + B_t.T @ P @ B_t)
-        Qux = S_t + B_t.T @ PA
-        Qxx = Q_t + A_t.T @ PA
-        qx = q_t + A_t.T @ z
-        qu = r_t + B_t.T @ z
-        L = jnp.linalg.cholesky(Quu)
+        z = mm(P, c_t) + p
+        PA = mm(P, A_t)
+        Quu = _sym(R_t + mm(B_t.T, mm(P, B_t)))
+        Qux = S_t + mm(B_t.T, PA)
+        Qxx = Q_t + mm(A_t.T, PA)
+        qx = q_t + mm(A_t.T, z)
+        qu = r_t + mm(B_t.T, z)
+        L = cholesky(Quu)
         ok = _all_finite(L)
-        Kk = -jsl.cho_solve((L, True), jnp.concatenate([Qux, qu[:, None]], axis=1))
+        Kk = -cho_solve(L, jnp.concatenate([Qux, qu[:, None]], axis=1))
         K, k = Kk[:, :n], Kk[:, n]
-        P_t = _sym(Qxx + Qux.T @ K)
-        p_t = qx + Qux.T @ k
-        v_t = v + c_t @ (0.5 * (P @ c_t) + p) + 0.5 * (qu @ k)
+        P_t = _sym(Qxx + mm(Qux.T, K))
+        p_t = qx + mm(Qux.T, k)
+        v_t = v + jnp.sum(c_t * (0.5 * mm(P, c_t) + p)) + 0.5 * jnp.sum(qu * k)
         return (P_t, p_t, v_t), (K, k, P_t, p_t, v_t, ok)
 
     zero = jnp.zeros((), x0.dtype)
@@ -341,8 +342,8 @@ def _lqr(A, B, Q, R, QT, x0, S, q, r, qT, c, throw) -> LQRSolution:
 
     def forward(x, data):
         A_t, B_t, c_t, K, k = data
-        u = K @ x + k
-        return A_t @ x + B_t @ u + c_t, (x, u)
+        u = mm(K, x) + k
+        return mm(A_t, x) + mm(B_t, u) + c_t, (x, u)
 
     xT, (xs, us) = jax.lax.scan(forward, x0, (A, B, c, Ks, ks))
     xs = jnp.concatenate([xs, xT[None]], axis=0)

@@ -1,0 +1,73 @@
+"""Small dense Cholesky factorisation, solves and products for the sequential passes of LQR / iLQR / DDP.
+
+Inside a ``lax.scan`` over time steps each LAPACK custom call (``potrf``, ``trsm``) costs about a
+microsecond of dispatch on XLA:CPU, more than the arithmetic of a 2x2 or 4x4 system. For
+``m <= UNROLL_MAX`` these functions write the factorisation and the triangular solves out as scalar
+and row-vector arithmetic (static Python loops), which XLA fuses; larger systems use
+``jnp.linalg.cholesky`` / ``jax.scipy.linalg.cho_solve``. Both paths return NaN factors for a matrix
+that is not positive definite, like ``jnp.linalg.cholesky``.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+from jaxtyping import Array, Float
+
+UNROLL_MAX = 6
+
+
+def cholesky(H: Float[Array, "m m"]) -> Float[Array, "m m"]:
+    """The lower Cholesky factor of the symmetric ``H`` (NaN where ``H`` is not positive definite)."""
+    m = H.shape[0]
+    if m > UNROLL_MAX:
+        return jnp.linalg.cholesky(H)
+    L: list[list] = [[None] * m for _ in range(m)]
+    zero = jnp.zeros((), H.dtype)
+    for j in range(m):
+        s = H[j, j] - sum((L[j][k] ** 2 for k in range(j)), zero)
+        d = jnp.where(s > 0, jnp.sqrt(jnp.where(s > 0, s, 1)), jnp.nan)
+        L[j][j] = d
+        for i in range(j + 1, m):
+            L[i][j] = (H[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), zero)) / d
+    rows = [jnp.stack([L[i][j] if j <= i else zero for j in range(m)]) for i in range(m)]
+    return jnp.stack(rows)
+
+
+def cho_solve(L: Float[Array, "m m"], B: Float[Array, "m ..."]) -> Float[Array, "m ..."]:
+    """``X`` with ``L L' X = B`` for the lower factor ``L`` of :func:`cholesky`."""
+    m = L.shape[0]
+    if m > UNROLL_MAX:
+        return jsl.cho_solve((L, True), B)
+    y: list = [None] * m
+    for i in range(m):
+        acc = B[i]
+        for k in range(i):
+            acc = acc - L[i, k] * y[k]
+        y[i] = acc / L[i, i]
+    x: list = [None] * m
+    for i in reversed(range(m)):
+        acc = y[i]
+        for k in range(i + 1, m):
+            acc = acc - L[k, i] * x[k]
+        x[i] = acc / L[i, i]
+    return jnp.stack(x)
+
+
+EW_MAX = 4096  # largest a.shape[0] * a.shape[1] * b.shape[-1] multiplied elementwise
+
+
+def mm(a: Float[Array, "p q"], b: Float[Array, "q ..."]) -> Float[Array, "p ..."]:
+    """``a @ b`` for a matrix ``a`` and a matrix or vector ``b``.
+
+    Small products are written as a broadcast multiply and a sum, which XLA:CPU fuses with their
+    neighbours instead of dispatching a ``dot`` per product (inside the per-time-step body of a
+    ``lax.scan`` this is 1.5-5x faster for the state sizes of the problem library); larger ones are
+    plain ``dot``s.
+    """
+    cols = 1 if b.ndim == 1 else b.shape[-1]
+    if a.shape[0] * a.shape[1] * cols > EW_MAX:
+        return a @ b
+    if b.ndim == 1:
+        return jnp.sum(a * b[None, :], axis=1)
+    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
