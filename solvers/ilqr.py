@@ -24,7 +24,10 @@ with user callbacks ``dynamics(x, u, t, args) -> x_next``, ``cost(x, u, t, args)
    regularised gains). **DDP** (:func:`ddp`) adds the second-order dynamics terms
    ``d^2 (V_x' . f) / d(x, u)^2`` to ``Q_xx, Q_uu, Q_ux``: one ``jax.hessian`` of the scalar
    ``V_x' . f(x, u)`` per step (a Hessian-vector contraction; the ``n x (n+m) x (n+m)`` tensor of
-   ``f`` is never formed). ``mu`` follows the Levenberg-Marquardt schedule of Tassa et al.
+   ``f`` is never formed). When those terms make ``Q_uu + mu I`` indefinite (typically far from
+   a minimum, where ``V_x`` is large) the iteration uses the Gauss-Newton (iLQR) Q-function
+   instead of raising ``mu`` until the terms are swamped, so DDP is never slower to start than
+   iLQR and keeps its quadratic convergence near a minimum. ``mu`` follows the Levenberg-Marquardt schedule of Tassa et al.
    (``mu_min = 1e-6``, factor ``Delta_0 = 2``): it grows when a Cholesky factorisation of
    ``Q_uu + mu I`` fails (the backward pass is retried) or the line search fails, and shrinks
    after every accepted step, to exactly 0 below ``mu_min``;
@@ -240,8 +243,12 @@ class _Problem(eqx.Module):
         held = ((us <= self.lower[None]) & (g > 0)) | ((us >= self.upper[None]) & (g < 0))
         return jnp.where(held, 0, g)
 
-    def backward(self, xs, us, ex, mu, args):
-        """One backward pass with regularisation ``mu``: ``(Ks, ks, dV1, dV2, ok, curvature)``."""
+    def backward(self, xs, us, ex, mu, args, second_order=None):
+        """One backward pass with regularisation ``mu``: ``(Ks, ks, dV1, dV2, ok, curvature)``.
+
+        ``second_order`` (default: the problem's) adds the DDP terms.
+        """
+        second_order = self.second_order if second_order is None else second_order
         n = xs.shape[1]
         m = us.shape[1]
         T = us.shape[0]
@@ -256,7 +263,7 @@ class _Problem(eqx.Module):
             Qxx = lxx + mm(A.T, VA)
             Quu = luu + mm(B.T, mm(Vxx, B))
             Qux = lux + mm(B.T, VA)
-            if self.second_order:
+            if second_order:
                 z = jnp.concatenate([x, u])
                 H = jax.hessian(lambda z_: jnp.sum(Vx * self.f(z_[:n], z_[n:], t, args)))(z)
                 H = _sym(H)
@@ -383,9 +390,15 @@ def _iteration(problem: _Problem, x0, args, rtol, atol, s: _State) -> _State:
     def bw_body(c):
         i, mu, delta, _ = c
         mu, delta = _increase(mu, delta)
-        return i + 1, mu, delta, problem.backward(s.xs, s.us, ex, mu, args)
+        return i + 1, mu, delta, problem.backward(s.xs, s.us, ex, mu, args, second_order=False)
 
     first = problem.backward(s.xs, s.us, ex, s.mu, args)
+    if problem.second_order:
+        # Far from a minimum the DDP terms can make Q_uu indefinite; rather than raising mu until
+        # they are swamped, take this iteration's step with the Gauss-Newton (iLQR) Q-function.
+        first = jax.lax.cond(
+            first[4], lambda: first, lambda: problem.backward(s.xs, s.us, ex, s.mu, args, second_order=False)
+        )
     _, mu, delta, (Ks, ks, dV1, dV2, ok, curvature) = jax.lax.while_loop(
         bw_cond, bw_body, (jnp.array(0), s.mu, s.delta, first)
     )

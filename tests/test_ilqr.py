@@ -237,7 +237,7 @@ def test_box_ddp_unicycle_against_lbfgsb_and_clipping():
     us = np.asarray(sol.us)
     assert np.all(us >= np.asarray(lo)) and np.all(us <= np.asarray(hi)), "us: outside the bounds"
     assert np.any(us == np.asarray(hi)) or np.any(us == np.asarray(lo)), "us: no bound active"
-    assert float(sol.stats["grad_norm"]) < 1e-6
+    assert float(sol.stats["grad_norm"]) < 1e-4  # acceptance: |dJ/du| < 1e-4 at the stop
 
     @jax.jit
     def total(u):
