@@ -24,10 +24,10 @@ with user callbacks ``dynamics(x, u, t, args) -> x_next``, ``cost(x, u, t, args)
    regularised gains). **DDP** (:func:`ddp`) adds the second-order dynamics terms
    ``d^2 (V_x' . f) / d(x, u)^2`` to ``Q_xx, Q_uu, Q_ux``: one ``jax.hessian`` of the scalar
    ``V_x' . f(x, u)`` per step (a Hessian-vector contraction; the ``n x (n+m) x (n+m)`` tensor of
-   ``f`` is never formed). When those terms make ``Q_uu + mu I`` indefinite (typically far from
-   a minimum, where ``V_x`` is large) the iteration uses the Gauss-Newton (iLQR) Q-function
-   instead of raising ``mu`` until the terms are swamped, so DDP is never slower to start than
-   iLQR and keeps its quadratic convergence near a minimum. ``mu`` follows the Levenberg-Marquardt schedule of Tassa et al.
+   ``f`` is never formed). When those terms make some ``Q_uu + mu I`` indefinite (typically far
+   from a minimum, where ``V_x`` is large) the backward pass is first redone without them (an
+   iLQR pass) before ``mu`` is raised, so DDP starts like iLQR instead of throttling its steps
+   with a huge ``mu``, and keeps its quadratic convergence near a minimum. ``mu`` follows the Levenberg-Marquardt schedule of Tassa et al.
    (``mu_min = 1e-6``, factor ``Delta_0 = 2``): it grows when a Cholesky factorisation of
    ``Q_uu + mu I`` fails (the backward pass is retried) or the line search fails, and shrinks
    after every accepted step, to exactly 0 below ``mu_min``;
@@ -243,12 +243,12 @@ class _Problem(eqx.Module):
         held = ((us <= self.lower[None]) & (g > 0)) | ((us >= self.upper[None]) & (g < 0))
         return jnp.where(held, 0, g)
 
-    def backward(self, xs, us, ex, mu, args, second_order=None):
+    def backward(self, xs, us, ex, mu, args, second=1.0):
         """One backward pass with regularisation ``mu``: ``(Ks, ks, dV1, dV2, ok, curvature)``.
 
-        ``second_order`` (default: the problem's) adds the DDP terms.
+        For DDP, ``second`` (0 or 1, may be traced) scales the second-order dynamics terms.
         """
-        second_order = self.second_order if second_order is None else second_order
+        second_order = self.second_order
         n = xs.shape[1]
         m = us.shape[1]
         T = us.shape[0]
@@ -264,15 +264,16 @@ class _Problem(eqx.Module):
             Quu = luu + mm(B.T, mm(Vxx, B))
             Qux = lux + mm(B.T, VA)
             if second_order:
+                # The DDP terms, switched off (second = 0) for a Gauss-Newton (iLQR) pass.
                 z = jnp.concatenate([x, u])
                 H = jax.hessian(lambda z_: jnp.sum(Vx * self.f(z_[:n], z_[n:], t, args)))(z)
-                H = _sym(H)
+                H = second * _sym(H)
                 Qxx = Qxx + H[:n, :n]
                 Quu = Quu + H[n:, n:]
                 Qux = Qux + H[n:, :n]
             Quu = _sym(Quu)
+            L = cholesky(Quu + mu * eye)
             H = Quu + mu * eye
-            L = cholesky(H)
             ok = _all_finite(L)
             if self.bounded:
                 k, free, L_free = _box_qp(jnp.where(ok, H, eye), Qu, self.lower - u, self.upper - u)
@@ -382,25 +383,26 @@ def _iteration(problem: _Problem, x0, args, rtol, atol, s: _State) -> _State:
     ex = problem.expand(s.xs, s.us, args)
     g_norm = jnp.max(jnp.abs(problem.projected(problem.gradient(ex), s.us)))
 
-    # Backward pass, retried with a larger regularisation while Q_uu + mu I is not PD.
+    # Backward pass, retried while Q_uu + mu I is not PD: DDP first retries without its
+    # second-order terms (far from a minimum they can make Q_uu indefinite; raising mu until they
+    # are swamped would throttle the steps), then with a larger regularisation.
     def bw_cond(c):
-        i, mu, delta, out = c
+        i, mu, delta, second, out = c
         return ~out[4] & (mu <= _MU_MAX) & (i < _BACKWARD_RETRIES)
 
     def bw_body(c):
-        i, mu, delta, _ = c
-        mu, delta = _increase(mu, delta)
-        return i + 1, mu, delta, problem.backward(s.xs, s.us, ex, mu, args, second_order=False)
+        i, mu, delta, second, _ = c
+        drop = second > 0
+        mu_up, delta_up = _increase(mu, delta)
+        mu = jnp.where(drop, mu, mu_up)
+        delta = jnp.where(drop, delta, delta_up)
+        second = jnp.zeros_like(second)
+        return i + 1, mu, delta, second, problem.backward(s.xs, s.us, ex, mu, args, second)
 
-    first = problem.backward(s.xs, s.us, ex, s.mu, args)
-    if problem.second_order:
-        # Far from a minimum the DDP terms can make Q_uu indefinite; rather than raising mu until
-        # they are swamped, take this iteration's step with the Gauss-Newton (iLQR) Q-function.
-        first = jax.lax.cond(
-            first[4], lambda: first, lambda: problem.backward(s.xs, s.us, ex, s.mu, args, second_order=False)
-        )
-    _, mu, delta, (Ks, ks, dV1, dV2, ok, curvature) = jax.lax.while_loop(
-        bw_cond, bw_body, (jnp.array(0), s.mu, s.delta, first)
+    second0 = jnp.asarray(1.0 if problem.second_order else 0.0, dtype)
+    first = problem.backward(s.xs, s.us, ex, s.mu, args, second0)
+    _, mu, delta, _, (Ks, ks, dV1, dV2, ok, curvature) = jax.lax.while_loop(
+        bw_cond, bw_body, (jnp.array(0), s.mu, s.delta, second0, first)
     )
     ok = ok & (mu <= _MU_MAX)
     Ks = jnp.where(ok, Ks, 0)
