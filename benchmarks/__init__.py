@@ -122,6 +122,10 @@ REGISTRY: dict[str, BenchmarkSpec] = {
             "ik", "benchmarks.ik:run_ik",
             "IK, 5 effectors (position + orientation), CMU skeleton: LM, optimistix, jaxopt, CCD, Pinocchio CLIK",
         ),
+        BenchmarkSpec(
+            "oc", "benchmarks.oc:run_oc",
+            "optimal control: iLQR/DDP/LQR/DARE vs Crocoddyl and scipy (unicycle, LQ, DARE, swing-ups)",
+        ),
     )
 }
 
