@@ -371,21 +371,34 @@ def _integrate_orientation(q: Float[Array, "B 4"], omega: Float[Array, "B 3"], h
     return rot.quat_normalize(q + 0.5 * h * rot.quat_multiply(w, q))
 
 
-def _momentum_step(model: RigidBodies, state: BodyState, force, torque, h) -> BodyState:
-    """The step of the module docstring with given total forces and torques (no checks)."""
+def _free_velocities(model: RigidBodies, state: BodyState, force, torque, h):
+    """The velocities after one step of the loads alone: ``(v*, omega*, I_n)`` with
+    ``v* = v + h (f/m + g)`` and ``omega* = I_n^{-1} (I_n omega + h tau)``."""
     v = state.linear_velocity + h * (force / model.mass[:, None] + model.gravity[None, :])
     I_n = world_inertia(model, state.orientation)
-    L = jnp.einsum("bij,bj->bi", I_n, state.angular_velocity) + h * torque
-    omega_half = jnp.linalg.solve(I_n, L[..., None])[..., 0]
-    q = _integrate_orientation(state.orientation, omega_half, h)
-    omega = jnp.linalg.solve(world_inertia(model, q), L[..., None])[..., 0]
+    omega = state.angular_velocity + h * jnp.linalg.solve(I_n, torque[..., None])[..., 0]
+    return v, omega, I_n
+
+
+def _integrate(model: RigidBodies, state: BodyState, v, omega, I_n, h) -> BodyState:
+    """Positions with the new velocities, then the angular velocity re-expressed at the new
+    orientation with the same angular momentum ``L = I_n omega``."""
+    q = _integrate_orientation(state.orientation, omega, h)
+    L = jnp.einsum("bij,bj->bi", I_n, omega)
+    omega_new = jnp.linalg.solve(world_inertia(model, q), L[..., None])[..., 0]
     return BodyState(
         position=state.position + h * v,
         orientation=q,
         linear_velocity=v,
-        angular_velocity=omega,
+        angular_velocity=omega_new,
         time=state.time + h,
     )
+
+
+def _momentum_step(model: RigidBodies, state: BodyState, force, torque, h) -> BodyState:
+    """The step of the module docstring with given total forces and torques (no checks)."""
+    v, omega, I_n = _free_velocities(model, state, force, torque, h)
+    return _integrate(model, state, v, omega, I_n, h)
 
 
 @eqx.filter_jit
