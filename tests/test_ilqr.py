@@ -157,22 +157,29 @@ def _fields(sol):
 
 
 def test_vmap_equals_loop_with_diverging_element():
-    x0s = jnp.array([[-1.0, -1.0, 1.0], [0.5, -0.3, -0.2], [jnp.nan, 0.0, 0.0], [1.0, 1.0, 0.0]])
-    batched = jax.vmap(lambda x0: _fields(_solve_unicycle(x0)))(x0s)
+    # 1024 initial states (acceptance), one of them NaN.
+    rng = np.random.default_rng(7)
+    x0s = np.concatenate([[[-1.0, -1.0, 1.0]], rng.uniform(-1.0, 1.0, (1023, 3))])
+    x0s[2] = [np.nan, 0.0, 0.0]
+    x0s = jnp.asarray(x0s)
+    batched = jax.jit(jax.vmap(lambda x0: _fields(_solve_unicycle(x0))))(x0s)
     for i in range(x0s.shape[0]):
         single = _fields(_solve_unicycle(x0s[i]))
         if i == 2:
+            assert int(single["result"]) == RESULTS.nonfinite._value
             continue
         for key, value in single.items():
             np.testing.assert_allclose(batched[key][i], value, atol=1e-10, rtol=0, err_msg=f"element {i}: {key}")
-    # Element 0 is the reference problem (converges); 1 and 3 converge only linearly (the lateral
-    # offset is nearly uncontrollable), so they may still be running at max_steps. Only the NaN
-    # element is nonfinite, and it did not abort the batch.
-    results = [int(r) for r in batched["result"]]
+    # Element 0 is the reference problem (converges); others with a lateral offset converge only
+    # linearly (it is nearly uncontrollable), so some may still be running at max_steps. Only the
+    # NaN element is nonfinite, and it did not abort the batch.
+    results = np.asarray(batched["result"])
     assert results[0] == RESULTS.successful._value
     assert results[2] == RESULTS.nonfinite._value
-    assert all(results[i] in (RESULTS.successful._value, RESULTS.max_steps_reached._value) for i in (1, 3))
-    assert np.all(np.isfinite(np.asarray(batched["cost"])[[0, 1, 3]]))
+    others = np.delete(results, 2)
+    assert np.all((others == RESULTS.successful._value) | (others == RESULTS.max_steps_reached._value))
+    assert np.mean(others == RESULTS.successful._value) > 0.3  # 45 % converge within 40 iterations
+    assert np.all(np.isfinite(np.delete(np.asarray(batched["cost"]), 2)))
 
 
 def test_fixed_steps_equals_adaptive():
