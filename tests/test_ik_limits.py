@@ -171,17 +171,19 @@ def test_hard_euler_limits_on_cmu_batch():
     batch = jax.tree.map(lambda *x: jnp.stack(x), *[_random_targets(skel, s) for s in range(4)])
     q0 = skel.rest_rotations()
 
-    def solve(tg, half_width):
-        limits = tuple(EulerLimit(n, -half_width * jnp.ones(3), half_width * jnp.ones(3), "ZYX")
-                       for n in skel.names[1:])
-        return ik.solve_ik(skel, tg, q0, None, limits=limits, regularization=0.0,
-                           solver=solvers.LevenbergMarquardt(max_steps=300),
-                           position_tolerance=1e-9, orientation_tolerance=1e-9), limits
+    def boxes(half_width):
+        return tuple(EulerLimit(n, -half_width * jnp.ones(3), half_width * jnp.ones(3), "ZYX")
+                     for n in skel.names[1:])
 
-    f = jax.jit(jax.vmap(lambda tg, w: solve(tg, w)[0], in_axes=(0, None)))
+    def solve(tg, half_width):
+        return ik.solve_ik(skel, tg, q0, None, limits=boxes(half_width), regularization=0.0,
+                           solver=solvers.LevenbergMarquardt(max_steps=300),
+                           position_tolerance=1e-9, orientation_tolerance=1e-9)
+
+    f = jax.jit(jax.vmap(solve, in_axes=(0, None)))
     for width, reachable in ((np.pi / 4, True), (np.radians(20), False)):
         sol = f(batch, width)
-        limits = solve(jax.tree.map(lambda x: x[0], batch), width)[1]
+        limits = boxes(width)
         v = jax.vmap(lambda r: limit_violation(skel, limits, r))(sol.rotations)
         assert float(jnp.max(v)) <= _VIOLATION_ATOL
         assert bool(jnp.all(jnp.isfinite(sol.rotations)))
