@@ -17,6 +17,10 @@ eq. 6.28 (maximal coordinates, velocity-level constraints):
 **Solver for step 2**: the ``R x R`` system (``R`` = constraint rows, 57 for a 19-ball-joint tree)
 is assembled densely and solved exactly by a Cholesky factorisation (``O(R^3)``; exact, no
 iteration count to tune). ``cfm`` keeps it positive definite for redundant rows (closed loops).
+With complementarity contact (:mod:`jaxanim.contact`) the contact rows join the system: the joint
+block is eliminated exactly (Schur complement) and the contact impulses are found by projected
+Gauss-Seidel with a fixed number of sweeps; penalty contact instead adds forces to the loads of
+step 1.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from . import rotations as rot
 from ._errors import JaxanimError, check_shape
+from .contact import Ground, contact_rows, make_ground, penalty_loads, projected_gauss_seidel
 from .joints import Joints, joint_rows
 from .rigid import BodyState, RigidBodies, _check_model, _free_velocities, _integrate
 
@@ -46,26 +51,39 @@ class PhysicsModel(eqx.Module):
             ``O(h^2 omega^2 r)`` anchor error per step, and the steady drift is that over ``erp``;
             a double pendulum of 0.5 m capsules drifts < 5e-5 m at 600 Hz).
         cfm: constraint-force mixing, added to the diagonal of ``J M^{-1} J'``.
+        ground: the ground plane and contact model (:class:`~jaxanim.contact.Ground`; model
+            ``"none"`` for no contact).
     """
 
     bodies: RigidBodies
     joints: Joints
     erp: Float[Array, ""]
     cfm: Float[Array, ""]
+    ground: Ground
 
 
-def make_model(bodies: RigidBodies, joints: Joints, *, erp: float = 0.5, cfm: float = 1e-10) -> PhysicsModel:
-    """A :class:`PhysicsModel`; ``erp`` in ``[0, 1]``, ``cfm >= 0``."""
+def make_model(
+    bodies: RigidBodies, joints: Joints | None = None, *, ground: Ground | None = None, erp: float = 0.5,
+    cfm: float = 1e-10,
+) -> PhysicsModel:
+    """A :class:`PhysicsModel`; ``erp`` in ``[0, 1]``, ``cfm >= 0``; no joints and no ground by
+    default (:func:`~jaxanim.contact.make_ground` for one)."""
     _check_model(bodies)
     if not 0 <= erp <= 1:
         raise JaxanimError(f"erp: expected a value in [0, 1], got {erp!r}")
     if not cfm >= 0:
         raise JaxanimError(f"cfm: expected >= 0, got {cfm!r}")
+    if joints is None:
+        z = np.zeros((0, 3))
+        joints = Joints(names=(), types=(), parent=(), child=(), anchor_parent=jnp.asarray(z), anchor_child=jnp.asarray(z),
+                        axis_parent=jnp.asarray(z), axis_child=jnp.asarray(z), rest=jnp.zeros((0, 4)))
     for name, idx in (("parent", joints.parent), ("child", joints.child)):
         if any(i >= bodies.num_bodies for i in idx):
             raise JaxanimError(f"joints.{name}: a body index is out of range for {bodies.num_bodies} bodies")
     dtype = bodies.mass.dtype
-    return PhysicsModel(bodies=bodies, joints=joints, erp=jnp.asarray(erp, dtype), cfm=jnp.asarray(cfm, dtype))
+    ground = make_ground("none", dtype=dtype) if ground is None else ground
+    return PhysicsModel(bodies=bodies, joints=joints, erp=jnp.asarray(erp, dtype), cfm=jnp.asarray(cfm, dtype),
+                        ground=ground)
 
 
 def joint_error(model: PhysicsModel, state: BodyState) -> Float[Array, " J"]:
@@ -84,15 +102,16 @@ def _apply_joint_torques(model: PhysicsModel, torque: Array, joint_torque: Array
     return torque
 
 
-def _solve_joints(model: PhysicsModel, state: BodyState, v, w, I_n, h):
+def _joint_matrix(model: PhysicsModel, state: BodyState, h):
+    """Dense joint rows ``J [R, B, 6]`` and their targets ``-(erp / h) g [R]``."""
     joints = model.joints
-    if joints.num_joints == 0:
-        return v, w
     B = model.bodies.num_bodies
-    dtype = v.dtype
-    Jp, Jc, g = joint_rows(joints, state)
+    dtype = state.position.dtype
     jj, rr = np.nonzero(joints.row_mask)
     R = jj.size
+    if R == 0:
+        return jnp.zeros((0, B, 6), dtype), jnp.zeros((0,), dtype)
+    Jp, Jc, g = joint_rows(joints, state)
     par = np.asarray(joints.parent)[jj]
     chi = np.asarray(joints.child)[jj]
     rows = np.arange(R)
@@ -100,22 +119,54 @@ def _solve_joints(model: PhysicsModel, state: BodyState, v, w, I_n, h):
     has = par >= 0
     if np.any(has):
         Jd = Jd.at[rows[has], par[has]].add(Jp[jj[has], rr[has]])
+    return Jd, -(model.erp / h) * g[jj, rr]
+
+
+def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h):
+    """Velocities after the joint and (complementarity) contact impulses."""
+    dtype = v.dtype
+    Jj, bj = _joint_matrix(model, state, h)
+    contact = model.ground.model == "complementarity"
+    if contact:
+        Jc, bc = contact_rows(model.ground, model.bodies, state, h)
+    else:
+        Jc, bc = jnp.zeros((0,) + Jj.shape[1:], dtype), jnp.zeros((0,), dtype)
+    Rj, Rc = Jj.shape[0], Jc.shape[0]
+    if Rj + Rc == 0:
+        return v, w
+    J = jnp.concatenate([Jj, Jc])
     inv_m = (1.0 / model.bodies.mass)[:, None, None] * jnp.eye(3, dtype=dtype)[None]
-    W_lin = jnp.einsum("rbi,bij->rbj", Jd[..., :3], inv_m)
-    W_ang = jnp.einsum("rbi,bij->rbj", Jd[..., 3:], jnp.linalg.inv(I_n))
+    W_lin = jnp.einsum("rbi,bij->rbj", J[..., :3], inv_m)
+    W_ang = jnp.einsum("rbi,bij->rbj", J[..., 3:], jnp.linalg.inv(I_n))
     W = jnp.concatenate([W_lin, W_ang], axis=-1)  # J M^{-1}, [R, B, 6]
-    A = jnp.einsum("rbj,sbj->rs", W, Jd) + model.cfm * jnp.eye(R, dtype=dtype)
+    A = jnp.einsum("rbj,sbj->rs", W, J)
+    A = 0.5 * (A + A.T) + model.cfm * jnp.eye(Rj + Rc, dtype=dtype)
     V = jnp.concatenate([v, w], axis=-1)
-    rhs = -(model.erp / h) * g[jj, rr] - jnp.einsum("rbi,bi->r", Jd, V)
-    lam = jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(0.5 * (A + A.T)), True), rhs)
+    rhs = jnp.concatenate([bj, bc]) - jnp.einsum("rbi,bi->r", J, V)
+    if Rc == 0:
+        lam = jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(A), True), rhs)
+    else:
+        # Joints eliminated exactly (Schur complement of their block), contacts by PGS.
+        Acc, rc = A[Rj:, Rj:], rhs[Rj:]
+        if Rj:
+            L = jnp.linalg.cholesky(A[:Rj, :Rj])
+            X = jax.scipy.linalg.cho_solve((L, True), A[:Rj, Rj:])
+            y = jax.scipy.linalg.cho_solve((L, True), rhs[:Rj])
+            Acc = Acc - A[Rj:, :Rj] @ X
+            rc = rc - A[Rj:, :Rj] @ y
+        lam_c = projected_gauss_seidel(Acc, rc, model.ground.friction, model.ground.iterations)
+        lam = lam_c if not Rj else jnp.concatenate([y - X @ lam_c, lam_c])
     V = V + jnp.einsum("rbj,r->bj", W, lam)
     return V[:, :3], V[:, 3:]
 
 
 def _step(model: PhysicsModel, state: BodyState, force, torque, joint_torque, h) -> BodyState:
     torque = _apply_joint_torques(model, torque, joint_torque) if model.joints.num_joints else torque
+    if model.ground.model == "penalty":
+        f_c, tau_c = penalty_loads(model.ground, model.bodies, state)
+        force, torque = force + f_c, torque + tau_c
     v, w, I_n = _free_velocities(model.bodies, state, force, torque, h)
-    v, w = _solve_joints(model, state, v, w, I_n, h)
+    v, w = _solve_constraints(model, state, v, w, I_n, h)
     return _integrate(model.bodies, state, v, w, I_n, h)
 
 

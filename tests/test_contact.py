@@ -1,0 +1,97 @@
+"""Tests of jaxanim.contact through jaxanim.physics: a box dropped on the ground comes to rest
+(complementarity: no sinking beyond 1 mm; penalty: the static deflection m g / (4 k_p)), a box on
+a slope sticks below the friction angle and slides with the closed-form acceleration above it,
+contact points of each shape, and bad input."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxanim import JaxanimError, contact, physics, rigid
+from jaxanim import rotations as rot
+
+_SINK_TOL = 1e-3  # acceptance: a box at rest sinks less than 1 mm (complementarity)
+
+
+def _min_distance(model, state):
+    return jnp.min(contact._geometry(model.ground, model.bodies, state)[2])
+
+
+def _dropped_box(kind, dt, seconds=3.0):
+    bodies = rigid.make_bodies([("box", (0.2, 0.2, 0.2))])  # 8 kg
+    q0 = rot.axis_angle_to_quat(jnp.asarray([1.0, 0.3, 0.2]), 0.5)
+    state = rigid.make_state(bodies, position=[[0.0, 0.5, 0.0]], orientation=q0[None],
+                             angular_velocity=[[1.0, 0.0, 2.0]])
+    model = physics.make_model(bodies, ground=contact.make_ground(kind))
+    final, traj = physics.rollout(model, state, dt, int(round(seconds / dt)))
+    return model, final, traj
+
+
+def test_box_dropped_with_complementarity_contact_comes_to_rest_without_sinking():
+    model, final, traj = _dropped_box("complementarity", 1 / 120)
+    depth = -np.asarray(jax.vmap(lambda s: _min_distance(model, s))(traj))
+    assert depth.max() < _SINK_TOL, f"sank {depth.max():.2e} m"
+    assert np.max(np.abs(np.asarray(final.linear_velocity))) < 1e-6
+    assert np.max(np.abs(np.asarray(final.angular_velocity))) < 1e-6
+    # At rest on a face: the centre 0.1 m above the ground and a box axis along the normal.
+    np.testing.assert_allclose(final.position[0, 1], 0.1, atol=1e-6)
+    R = np.asarray(rot.quat_to_matrix(final.orientation[0]))
+    assert np.max(np.abs(R[1])) > 1 - 1e-6
+
+
+def test_box_dropped_with_penalty_contact_rests_at_the_static_deflection():
+    model, final, _ = _dropped_box("penalty", 1 / 1000)
+    g = model.ground
+    deflection = float(model.bodies.mass[0]) * 9.81 / (4 * float(g.stiffness))  # 4 corners share the load
+    np.testing.assert_allclose(-float(_min_distance(model, final)), deflection, rtol=0.05)
+    assert np.max(np.abs(np.asarray(final.linear_velocity))) < 1e-2
+
+
+@pytest.mark.parametrize("ratio", [0.8, 1.2])
+def test_box_on_a_slope_sticks_below_the_friction_angle_and_slides_above(ratio):
+    mu, dt, seconds = 0.5, 1 / 240, 1.0
+    alpha = np.arctan(ratio * mu)  # tan(alpha) = ratio * mu
+    n = np.array([-np.sin(alpha), np.cos(alpha), 0.0])
+    downhill = -np.array([np.cos(alpha), np.sin(alpha), 0.0])
+    bodies = rigid.make_bodies([("box", (0.2, 0.2, 0.2))])
+    q = rot.axis_angle_to_quat(jnp.asarray([0.0, 0.0, 1.0]), alpha)  # a face on the slope
+    x0 = (0.1 + 1e-6) * n
+    state = rigid.make_state(bodies, position=x0[None], orientation=q[None])
+    model = physics.make_model(bodies, ground=contact.make_ground(friction=mu, normal=n))
+    steps = int(round(seconds / dt))
+    final, _ = physics.rollout(model, state, dt, steps, record_every=steps)
+    slide = float((np.asarray(final.position[0]) - x0) @ downhill)
+    if ratio < 1:
+        assert abs(slide) < 1e-9, f"slid {slide} m below the friction angle"
+    else:
+        # Kinetic friction: a = g (sin a - mu cos a); the scheme's closed form a h^2 N (N + 1) / 2.
+        a = 9.81 * (np.sin(alpha) - mu * np.cos(alpha))
+        np.testing.assert_allclose(slide, a * dt**2 * steps * (steps + 1) / 2, rtol=1e-3)
+
+
+def test_contact_points_of_each_shape():
+    bodies = rigid.make_bodies([("box", (0.2, 0.4, 0.6)), ("sphere", (0.3,)), ("capsule", (0.1, 0.5))])
+    owner, local, radius = contact.contact_points(bodies)
+    np.testing.assert_array_equal(owner, [0] * 8 + [1] + [2, 2])
+    np.testing.assert_allclose(np.abs(np.asarray(local[:8])), np.tile([0.1, 0.2, 0.3], (8, 1)))
+    np.testing.assert_allclose(local[9:], [[0, 0, -0.25], [0, 0, 0.25]])
+    np.testing.assert_allclose(radius, [0] * 8 + [0.3, 0.1, 0.1])
+    # A sphere resting on the plane touches it: distance 0.
+    state = rigid.make_state(bodies, position=[[0, 5, 0], [1.0, 0.3, 0.0], [0, 5, 0]])
+    g = contact.make_ground()
+    phi = contact._geometry(g, bodies, state)[2]
+    np.testing.assert_allclose(phi[8], 0.0, atol=1e-15)
+
+
+def test_bad_input():
+    with pytest.raises(JaxanimError, match="model: expected one of"):
+        contact.make_ground("springs")
+    with pytest.raises(JaxanimError, match="normal: expected a non-zero vector"):
+        contact.make_ground(normal=(0, 0, 0))
+    with pytest.raises(JaxanimError, match="friction: expected >= 0"):
+        contact.make_ground(friction=-0.1)
+    with pytest.raises(JaxanimError, match="iterations: expected an int >= 1"):
+        contact.make_ground(iterations=0)
