@@ -34,6 +34,7 @@ from jaxtyping import Array, ArrayLike, Float
 from . import rotations as rot
 from ._errors import JaxanimError, check_shape
 from .contact import Ground, contact_rows, make_ground, penalty_loads, projected_gauss_seidel
+from .control import joint_errors
 from .joints import Joints, joint_rows
 from .rigid import BodyState, RigidBodies, _check_model, _free_velocities, _integrate
 
@@ -122,10 +123,43 @@ def _joint_matrix(model: PhysicsModel, state: BodyState, h):
     return Jd, -(model.erp / h) * g[jj, rr]
 
 
-def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h):
-    """Velocities after the joint and (complementarity) contact impulses."""
+def _motor_rows(model: PhysicsModel, state: BodyState, spd, h):
+    """Stable-PD rows on every joint's relative angular velocity: ``(J [3J, B, 6], b [3J], cfm [3J])``.
+
+    The implicit law ``tau = k_p (e - h w) - k_d w`` (``w`` the new relative angular velocity,
+    ``e`` the error at step ``n``) is the soft constraint ``w + cfm lambda = b`` on the impulse
+    ``lambda = h tau`` with ``b = k_p e / (h k_p + k_d)`` and ``cfm = 1 / (h (h k_p + k_d))``.
+    """
+    targets, kp, kd = spd
+    joints = model.joints
+    Jn, B = joints.num_joints, model.bodies.num_bodies
+    dtype = state.position.dtype
+    e, _ = joint_errors(joints, state, rot.quat_normalize(targets))
+    c = h * kp + kd  # [J]
+    active = c > 0
+    c_safe = jnp.where(active, c, 1.0)
+    b = jnp.where(active[:, None], kp[:, None] * e / c_safe[:, None], 0.0).reshape(3 * Jn)
+    cfm = jnp.repeat(jnp.where(active, 1.0 / (h * c_safe), 1.0), 3)
+    eye = jnp.eye(3, dtype=dtype)
+    blk = jnp.where(active[:, None, None], eye[None], 0.0)  # [J, 3, 3]
+    rows = np.arange(3 * Jn)
+    chi = np.repeat(np.asarray(joints.child), 3)
+    par = np.repeat(np.asarray(joints.parent), 3)
+    Jm = jnp.zeros((3 * Jn, B, 6), dtype).at[rows, chi, 3:].set(blk.reshape(3 * Jn, 3))
+    has = par >= 0
+    if np.any(has):
+        Jm = Jm.at[rows[has], par[has], 3:].set(-blk.reshape(3 * Jn, 3)[has])
+    return Jm, b, cfm
+
+
+def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=None):
+    """Velocities after the joint, stable-PD and (complementarity) contact impulses."""
     dtype = v.dtype
     Jj, bj = _joint_matrix(model, state, h)
+    cfm_extra = jnp.zeros((Jj.shape[0],), dtype)
+    if spd is not None:
+        Jm, bm, cm = _motor_rows(model, state, spd, h)
+        Jj, bj, cfm_extra = jnp.concatenate([Jj, Jm]), jnp.concatenate([bj, bm]), jnp.concatenate([cfm_extra, cm])
     contact = model.ground.model == "complementarity"
     if contact:
         Jc, bc = contact_rows(model.ground, model.bodies, state, h)
@@ -141,6 +175,7 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h):
     W = jnp.concatenate([W_lin, W_ang], axis=-1)  # J M^{-1}, [R, B, 6]
     A = jnp.einsum("rbj,sbj->rs", W, J)
     A = 0.5 * (A + A.T) + model.cfm * jnp.eye(Rj + Rc, dtype=dtype)
+    A = A + jnp.diag(jnp.concatenate([cfm_extra, jnp.zeros((Rc,), dtype)]))
     V = jnp.concatenate([v, w], axis=-1)
     rhs = jnp.concatenate([bj, bc]) - jnp.einsum("rbi,bi->r", J, V)
     if Rc == 0:
@@ -160,13 +195,13 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h):
     return V[:, :3], V[:, 3:]
 
 
-def _step(model: PhysicsModel, state: BodyState, force, torque, joint_torque, h) -> BodyState:
+def _step(model: PhysicsModel, state: BodyState, force, torque, joint_torque, h, spd=None) -> BodyState:
     torque = _apply_joint_torques(model, torque, joint_torque) if model.joints.num_joints else torque
     if model.ground.model == "penalty":
         f_c, tau_c = penalty_loads(model.ground, model.bodies, state)
         force, torque = force + f_c, torque + tau_c
     v, w, I_n = _free_velocities(model.bodies, state, force, torque, h)
-    v, w = _solve_constraints(model, state, v, w, I_n, h)
+    v, w = _solve_constraints(model, state, v, w, I_n, h, spd)
     return _integrate(model.bodies, state, v, w, I_n, h)
 
 
@@ -190,8 +225,8 @@ def _check_inputs(model: PhysicsModel, state: BodyState, force, torque, joint_to
 
 
 @eqx.filter_jit
-def _step_jit(model, state, force, torque, joint_torque, h):
-    return _step(model, state, force, torque, joint_torque, h)
+def _step_jit(model, state, force, torque, joint_torque, h, spd):
+    return _step(model, state, force, torque, joint_torque, h, spd)
 
 
 def step(
@@ -202,6 +237,7 @@ def step(
     force: Float[ArrayLike, "B 3"] | None = None,
     torque: Float[ArrayLike, "B 3"] | None = None,
     joint_torque: Float[ArrayLike, "J 3"] | None = None,
+    spd: tuple[Float[ArrayLike, "J 4"], Float[ArrayLike, " J"], Float[ArrayLike, " J"]] | None = None,
 ) -> BodyState:
     """Advance the articulated bodies by one step of ``dt`` seconds (see the module docstring).
 
@@ -213,6 +249,12 @@ def step(
         torque: ``[B, 3]`` external torques (world frame, N m).
         joint_torque: ``[J, 3]`` joint torques (world frame, N m): ``+tau`` on the child,
             ``-tau`` on the parent.
+        spd: optional stable PD on every joint, ``(targets [J, 4], kp [J], kd [J])``: targets
+            are the child's orientations relative to the parent (wxyz, ``q_p^{-1} q_c``), gains
+            in N m / rad and N m s / rad (0 and 0: that joint is not driven). The law
+            ``tau = k_p (e - h w) - k_d w`` is implicit in the new relative angular velocity ``w``
+            and solved with the joint constraints (soft rows, the stable PD of Tan et al. 2011 in
+            maximal coordinates); see :mod:`jaxanim.control` for ``e``.
 
     Returns:
         The new :class:`~jaxanim.rigid.BodyState`.
@@ -221,7 +263,16 @@ def step(
         JaxanimError: shapes do not match the model.
     """
     loads = _check_inputs(model, state, force, torque, joint_torque)
-    return _step_jit(model, state, *loads, jnp.asarray(dt, model.bodies.mass.dtype))
+    dtype = model.bodies.mass.dtype
+    if spd is not None:
+        Jn = model.joints.num_joints
+        if not (isinstance(spd, (tuple, list)) and len(spd) == 3):
+            raise JaxanimError("spd: expected (targets [J, 4], kp [J], kd [J])")
+        targets, kp, kd = (jnp.asarray(a, dtype) for a in spd)
+        check_shape("spd targets", targets, (Jn, 4), what=f"(J, 4) = ({Jn}, 4)")
+        kp, kd = jnp.broadcast_to(kp, (Jn,)), jnp.broadcast_to(kd, (Jn,))
+        spd = (targets, kp, kd)
+    return _step_jit(model, state, *loads, jnp.asarray(dt, dtype), spd)
 
 
 @eqx.filter_jit
