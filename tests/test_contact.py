@@ -26,7 +26,8 @@ def _dropped_box(kind, dt, seconds=3.0):
     state = rigid.make_state(bodies, position=[[0.0, 0.5, 0.0]], orientation=q0[None],
                              angular_velocity=[[1.0, 0.0, 2.0]])
     model = physics.make_model(bodies, ground=contact.make_ground(kind))
-    final, traj = physics.rollout(model, state, dt, int(round(seconds / dt)))
+    run = physics.rollout(model, state, dt, int(round(seconds / dt)))
+    final, traj = run.final, run.trajectory
     return model, final, traj
 
 
@@ -62,7 +63,7 @@ def test_box_on_a_slope_sticks_below_the_friction_angle_and_slides_above(ratio):
     state = rigid.make_state(bodies, position=x0[None], orientation=q[None])
     model = physics.make_model(bodies, ground=contact.make_ground(friction=mu, normal=n))
     steps = int(round(seconds / dt))
-    final, _ = physics.rollout(model, state, dt, steps, record_every=steps)
+    final = physics.rollout(model, state, dt, steps, record_every=steps).final
     slide = float((np.asarray(final.position[0]) - x0) @ downhill)
     if ratio < 1:
         assert abs(slide) < 1e-9, f"slid {slide} m below the friction angle"

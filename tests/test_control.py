@@ -121,3 +121,37 @@ def test_pd_joint_torques_and_errors():
         control.stable_pd_force(0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.1, form="tan")
     with pytest.raises(JaxanimError, match=r"spd targets: expected shape \(J, 4\) = \(3, 4\)"):
         physics.step(model, state, 0.01, spd=(jnp.zeros((2, 4)), 1.0, 1.0))
+
+
+def _pd_controller(state, step, args):
+    model, _, targets = _chain()
+    kp, kd = args
+    return dict(joint_torque=control.pd_joint_torques(model.joints, state, targets, jnp.full(3, kp), jnp.full(3, kd)))
+
+
+def test_rollout_stops_a_blown_up_character_and_vmap_sweeps_gains():
+    model, state, _ = _chain()
+    gains = (jnp.asarray([2.0, 300.0]), jnp.asarray([0.5, 10.0]))  # soft (stable at 120 Hz), stiff (not)
+    sweep = jax.vmap(lambda kp, kd: physics.rollout(model, state, 1 / 120, 240, record_every=240,
+                                                    controller=_pd_controller, controller_args=(kp, kd)))
+    runs = sweep(*gains)
+    codes = np.asarray(runs.result._value)
+    assert codes[0] == physics.SimResult.successful._value and int(runs.num_steps[0]) == 240
+    assert codes[1] == physics.SimResult.exploded._value and int(runs.num_steps[1]) < 240
+    assert np.all(np.isfinite(np.asarray(runs.final.position)))  # stopped at its last good state
+    assert np.max(np.abs(np.asarray(runs.final.linear_velocity[1]))) <= 1e3
+    for i in range(2):  # vmap = loop
+        one = physics.rollout(model, state, 1 / 120, 240, record_every=240, controller=_pd_controller,
+                              controller_args=(gains[0][i], gains[1][i]))
+        assert int(one.result._value) == codes[i] and int(one.num_steps) == int(runs.num_steps[i])
+        np.testing.assert_allclose(one.final.position, runs.final.position[i], atol=1e-9)
+    # A NaN state is reported, not propagated.
+    bad = _with_nan(state)
+    run = physics.rollout(model, bad, 1 / 120, 10)
+    assert run.result == physics.SimResult.nonfinite and int(run.num_steps) == 0
+
+
+def _with_nan(state):
+    return rigid.BodyState(position=state.position.at[1, 0].set(jnp.nan), orientation=state.orientation,
+                           linear_velocity=state.linear_velocity, angular_velocity=state.angular_velocity,
+                           time=state.time)

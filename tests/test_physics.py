@@ -63,7 +63,9 @@ def _mujoco_positions(model, state, dt, seconds):
 def test_double_pendulum_drift_and_energy_over_10_s():
     model, state = _double_pendulum()
     dt = 1 / 600
-    _, traj = physics.rollout(model, state, dt, 6000, record_every=10)
+    run = physics.rollout(model, state, dt, 6000, record_every=10)
+    assert run.result == physics.SimResult.successful and int(run.num_steps) == 6000
+    traj = run.trajectory
     drift = np.asarray(jax.vmap(lambda s: physics.joint_error(model, s))(traj))
     assert drift.max() < _DRIFT_TOL, f"joint separation {drift.max():.2e} m"
     E = _energy(model, traj)
@@ -81,7 +83,8 @@ def test_double_pendulum_converges_to_mujoco_at_first_order():
     ref = _mujoco_positions(model, state, 1 / 19200, seconds)
     errors = []
     for dt in (1 / 300, 1 / 600, 1 / 1200):
-        final, _ = physics.rollout(model, state, dt, int(round(seconds / dt)), record_every=int(round(seconds / dt)))
+        n = int(round(seconds / dt))
+        final = physics.rollout(model, state, dt, n, record_every=n).final
         errors.append(np.max(np.abs(np.asarray(final.position) - ref)))
     ratios = np.asarray(errors[:-1]) / np.asarray(errors[1:])
     assert np.all((ratios > 1.6) & (ratios < 2.5)), f"errors {errors}: not first order"
@@ -108,7 +111,7 @@ def test_chain_of_every_joint_type_matches_mujoco():
     seconds, dt = 0.5, 1 / 1200
     ref = _mujoco_positions(model, state, 1 / 24000, seconds)
     n = int(round(seconds / dt))
-    final, _ = physics.rollout(model, state, dt, n, record_every=n)
+    final = physics.rollout(model, state, dt, n, record_every=n).final
     err = np.max(np.abs(np.asarray(final.position) - ref))
     moved = np.max(np.abs(ref - np.asarray(state.position)))
     assert moved > 0.05, "the chain should swing"
