@@ -1,0 +1,299 @@
+r"""A simulated character built from a :class:`~jaxanim.skeleton.Skeleton`: one rigid body per bone
+group, ball joints at the skeleton's joints, and the maps between BVH poses and body states.
+
+**Bodies.** The segment of joint ``j`` is made of its children's (and End Sites') offsets, which
+all turn with ``j``'s rotation (the convention of :func:`jaxanim.fk.segment_com_offsets`). A joint
+whose segment has a non-negligible length (more than ``min_length`` of the height) gets a body:
+a capsule along the mean child direction whose tip-to-tip length is the mean offset length and
+whose radius comes from the joint's name (rough human proportions of the height: torso 0.08,
+head 0.06, thigh 0.05, shank 0.04, upper arm 0.035, forearm 0.03, hand 0.02; other names
+``radius_ratio`` times the length, clamped to ``[0.025, 0.07]`` of the height); feet and toes
+(names containing ``foot_names``) get boxes of the same extent so that they stand flat.
+Masses are proportional to the shapes' volumes and sum to ``total_mass`` (default 70 kg).
+Bodiless joints (zero-length segments, as CMU's ``Hips``, ``LHipJoint``'s parent and the chest
+junction) are welded into the nearest ancestor with a body; bodies with no such ancestor hang off
+the heaviest of them, the root body, which is free.
+
+**Joints.** Each non-root body is attached to its nearest bodied ancestor by a ball joint at its
+joint's position.
+
+**Units.** Simulation is in metres, seconds and kilograms with gravity ``-9.81`` along ``+Y``
+(BVH's up axis). The file's unit is inferred from the skeleton's rest height (``height``, default
+1.7 m) unless ``unit`` (metres per file unit) is given; :func:`character_pose` writes poses back
+in file units.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from . import rotations as rot
+from ._errors import JaxanimError, check_shape
+from .contact import Ground
+from .fk import forward_kinematics
+from .joints import Joints
+from .physics import PhysicsModel, make_model, to_mjcf
+from .rigid import BodyState, RigidBodies, make_state, shape_mass_properties
+from .skeleton import Skeleton
+
+__all__ = ["Character", "build_character", "character_pose", "character_state", "export_mjcf", "spd_targets"]
+
+
+class Character(eqx.Module):
+    """A skeleton's physics model and the maps between its poses and body states.
+
+    Attributes:
+        model: the :class:`~jaxanim.physics.PhysicsModel` (metres, kg).
+        skeleton: the skeleton (file units).
+        body_joint: ``[nb]`` the skeleton joint that owns each body (static).
+        joint_body: ``[joints]`` the body each skeleton joint moves with (its own, or its nearest
+            bodied ancestor's; ``-1`` for bodiless joints above every body) (static).
+        unit: metres per file unit (static).
+        body_rotation: ``[nb, 4]`` each body's orientation in its joint's frame (wxyz).
+        body_centre: ``[nb, 3]`` each body's centre of mass in its joint's frame, metres.
+    """
+
+    model: PhysicsModel
+    skeleton: Skeleton
+    body_joint: tuple[int, ...] = eqx.field(static=True)
+    joint_body: tuple[int, ...] = eqx.field(static=True)
+    unit: float = eqx.field(static=True)
+    body_rotation: Float[Array, "nb 4"]
+    body_centre: Float[Array, "nb 3"]
+
+    @property
+    def num_bodies(self) -> int:
+        return len(self.body_joint)
+
+
+def _segments(skeleton: Skeleton, j: int) -> np.ndarray:
+    off = np.asarray(skeleton.offsets, float)
+    es = np.asarray(skeleton.end_site_offsets, float)
+    parts = [off[c] for c, p in enumerate(skeleton.parents) if p == j]
+    parts += [es[e] for e, p in enumerate(skeleton.end_site_parents) if p == j]
+    return np.asarray(parts, float).reshape(-1, 3)
+
+
+# Segment radius as a fraction of the height, by the first matching (lower-case) name fragment;
+# rough human proportions. Other names: radius_ratio x length, clamped to [0.025, 0.07] x height.
+_RADII = (
+    (("finger", "thumb", "hand", "wrist"), 0.02),
+    (("forearm", "elbow"), 0.03),
+    (("shoulder", "clavicle", "collar"), 0.035),
+    (("arm",), 0.035),
+    (("upleg", "thigh"), 0.05),
+    (("leg", "shin", "calf", "knee"), 0.04),
+    (("foot", "ankle", "toe"), 0.03),
+    (("head",), 0.06),
+    (("neck",), 0.035),
+    (("spine", "back", "chest", "torso", "abdomen", "pelvis", "hip"), 0.08),
+)
+
+
+def _radius(name: str, length: float, height: float, ratio: float) -> float:
+    low = name.lower()
+    for keys, frac in _RADII:
+        if any(k in low for k in keys):
+            return frac * height
+    return float(np.clip(ratio * length, 0.025 * height, 0.07 * height))
+
+
+def build_character(
+    skeleton: Skeleton,
+    rotations: Float[Array, "joints 4"] | None = None,
+    translations: Float[Array, "joints 3"] | None = None,
+    *,
+    total_mass: float = 70.0,
+    height: float = 1.7,
+    unit: float | None = None,
+    radius_ratio: float = 0.2,
+    min_length: float = 0.035,
+    foot_names: tuple[str, ...] = ("Foot", "Toe"),
+    ground: Ground | None = None,
+    erp: float = 0.5,
+    cfm: float = 1e-10,
+) -> tuple[Character, BodyState]:
+    """Build the character and its state at a pose (default: the rest pose).
+
+    Args:
+        skeleton: the skeleton (any unit).
+        rotations, translations: the pose to assemble in (file units; default rest).
+        total_mass: kg.
+        height: the rest-pose height in metres that sets the unit when ``unit`` is omitted.
+        unit: metres per file unit.
+        radius_ratio: capsule radius / segment length (then clamped, see the module docstring).
+        min_length: segments shorter than this fraction of the height are ignored.
+        foot_names: substrings of joint names whose bodies are boxes.
+        ground: the ground contact (default none; :func:`jaxanim.contact.make_ground`).
+        erp, cfm: as for :func:`jaxanim.physics.make_model`.
+
+    Returns:
+        ``(character, state)``: the :class:`Character` and the bodies' state at the pose, at rest.
+
+    Raises:
+        JaxanimError: non-positive mass, height or unit, or a skeleton without any segment.
+    """
+    for name, value in (("total_mass", total_mass), ("height", height), ("radius_ratio", radius_ratio)):
+        if not value > 0:
+            raise JaxanimError(f"{name}: expected > 0, got {value!r}")
+    if unit is not None and not unit > 0:
+        raise JaxanimError(f"unit: expected > 0 (metres per file unit), got {unit!r}")
+    J = skeleton.num_joints
+    rest = forward_kinematics(skeleton, skeleton.rest_rotations(jnp.float64))
+    pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions).reshape(-1, 3)])
+    file_height = float(pts[:, 1].max() - pts[:, 1].min())
+    if unit is None:
+        if not file_height > 0:
+            raise JaxanimError("skeleton: zero rest height along Y; give unit= (metres per file unit)")
+        unit = height / file_height
+    H = file_height * unit  # metres
+    # Bodies: shapes in the joint frames (metres).
+    body_joint, shapes, centres, body_rots = [], [], [], []
+    for j in range(J):
+        seg = _segments(skeleton, j) * unit
+        lengths = np.linalg.norm(seg, axis=1)
+        seg = seg[lengths > min_length * H]
+        if seg.shape[0] == 0:
+            continue
+        mean = seg.mean(axis=0)
+        if np.linalg.norm(mean) > 0.5 * np.linalg.norm(seg, axis=1).mean():
+            d, L = mean / np.linalg.norm(mean), float(np.linalg.norm(mean))
+        else:  # children spread symmetrically: along the longest
+            k = int(np.argmax(np.linalg.norm(seg, axis=1)))
+            L = float(np.linalg.norm(seg[k]))
+            d = seg[k] / L
+        r = _radius(skeleton.names[j], L, H, radius_ratio)
+        if any(s in skeleton.names[j] for s in foot_names):
+            shapes.append(("box", (2 * r, 1.2 * r, L)))
+        else:
+            shapes.append(("capsule", (r, max(L - 2 * r, 0.2 * L))))
+        body_joint.append(j)
+        centres.append(0.5 * L * d)
+        body_rots.append(np.asarray(rot.rotation_between(jnp.array([0.0, 0.0, 1.0]), jnp.asarray(d))))
+    if not body_joint:
+        raise JaxanimError("skeleton: no segment longer than min_length; nothing to simulate")
+    vols = np.array([float(shape_mass_properties(k, s, density=1.0)[0]) for k, s in shapes])
+    masses = total_mass * vols / vols.sum()
+    names = tuple(skeleton.names[j] for j in body_joint)
+    from .rigid import make_bodies
+
+    bodies = make_bodies(shapes, names=names, mass=masses, gravity=(0.0, -9.81, 0.0), dtype=jnp.float64)
+    # Which body each joint moves with.
+    index = {j: b for b, j in enumerate(body_joint)}
+    joint_body = []
+    for j in range(J):
+        a = j
+        while a >= 0 and a not in index:
+            a = skeleton.parents[a]
+        joint_body.append(index[a] if a >= 0 else -1)
+    char = Character(
+        model=None, skeleton=skeleton, body_joint=tuple(body_joint), joint_body=tuple(joint_body), unit=float(unit),
+        body_rotation=jnp.asarray(np.stack(body_rots)), body_centre=jnp.asarray(np.stack(centres)),
+    )
+    state = character_state(char, rotations, translations, bodies=bodies)
+    # Joints: to the nearest bodied ancestor; top-level bodies hang off the heaviest one.
+    top = [b for b, j in enumerate(body_joint) if skeleton.parents[j] < 0 or joint_body[skeleton.parents[j]] < 0]
+    root = max(top, key=lambda b: masses[b])
+    specs = []
+    fk = forward_kinematics(skeleton, *_pose(skeleton, rotations, translations))
+    p_world = np.asarray(fk.positions) * unit
+    for b, j in enumerate(body_joint):
+        if b == root:
+            continue
+        parent = root if b in top else joint_body[skeleton.parents[j]]
+        specs.append(dict(name=skeleton.names[j], type="ball", parent=int(parent), child=int(b), anchor=p_world[j]))
+    from .joints import make_joints
+
+    joints: Joints = make_joints(bodies, state, specs)
+    model = make_model(bodies, joints, ground=ground, erp=erp, cfm=cfm)
+    return eqx.tree_at(lambda c: c.model, char, model, is_leaf=lambda x: x is None), state
+
+
+def _pose(skeleton: Skeleton, rotations, translations):
+    q = skeleton.rest_rotations(jnp.float64) if rotations is None else jnp.asarray(rotations, jnp.float64)
+    check_shape("rotations", q, (skeleton.num_joints, 4), what=f"(joints, 4) = ({skeleton.num_joints}, 4)")
+    t = None if translations is None else jnp.asarray(translations, jnp.float64)
+    if t is not None:
+        check_shape("translations", t, (skeleton.num_joints, 3), what=f"(joints, 3) = ({skeleton.num_joints}, 3)")
+    return q, t
+
+
+def character_state(
+    character: Character,
+    rotations: Float[Array, "joints 4"] | None = None,
+    translations: Float[Array, "joints 3"] | None = None,
+    *,
+    bodies: RigidBodies | None = None,
+) -> BodyState:
+    """The bodies' state (at rest) for a pose of the skeleton (file units)."""
+    skel = character.skeleton
+    q, t = _pose(skel, rotations, translations)
+    fk = forward_kinematics(skel, q, t)
+    bj = np.asarray(character.body_joint)
+    R = fk.rotations[bj]
+    x = fk.positions[bj] * character.unit + jnp.einsum("bij,bj->bi", R, character.body_centre)
+    orientation = rot.quat_multiply(rot.matrix_to_quat(R), character.body_rotation)
+    bodies = character.model.bodies if bodies is None else bodies
+    return make_state(bodies, position=x, orientation=orientation)
+
+
+def character_pose(
+    character: Character, state: BodyState, reference: Float[Array, "joints 4"] | None = None
+) -> tuple[Float[Array, "joints 4"], Float[Array, "joints 3"]]:
+    """The skeleton pose ``(rotations [joints, 4], translations [joints, 3])`` (file units) of a body
+    state: each bodied joint's world rotation is its body's, a bodiless joint keeps its
+    ``reference`` local rotation (default rest), and the root's translation follows from the
+    bodies."""
+    skel = character.skeleton
+    J = skel.num_joints
+    ref = skel.rest_rotations(state.position.dtype) if reference is None else jnp.asarray(reference)
+    bj = np.asarray(character.body_joint)
+    q_body_joint = rot.quat_multiply(state.orientation, rot.quat_conjugate(character.body_rotation))
+    p_body_joint = state.position - rot.quat_apply(q_body_joint, character.body_centre)
+    own = {int(j): b for b, j in enumerate(bj)}
+    # World rotations top-down (parents precede children in a Skeleton).
+    q_world: list = [None] * J
+    for j in range(J):
+        p = skel.parents[j]
+        if j in own:
+            q_world[j] = q_body_joint[own[j]]
+        elif p >= 0:
+            q_world[j] = rot.quat_multiply(q_world[p], ref[j])
+    # Bodiless joints above every body (e.g. the root): from the first bodied descendant.
+    for j in reversed(range(J)):
+        if q_world[j] is None:
+            kids = [c for c, p in enumerate(skel.parents) if p == j and q_world[c] is not None]
+            q_world[j] = rot.quat_multiply(q_world[kids[0]], rot.quat_conjugate(ref[kids[0]]))
+    qw = jnp.stack(q_world)
+    local = jnp.stack([qw[j] if skel.parents[j] < 0 else rot.quat_multiply(rot.quat_conjugate(qw[skel.parents[j]]), qw[j])
+                       for j in range(J)])
+    # Root translation: a bodied joint's world position minus its offsets up the chain.
+    b0 = 0
+    j0 = int(bj[b0])
+    p = p_body_joint[b0] / character.unit
+    a = j0
+    while skel.parents[a] >= 0:
+        par = skel.parents[a]
+        p = p - rot.quat_apply(qw[par], skel.offsets[a].astype(p.dtype))
+        a = par
+    translations = jnp.broadcast_to(skel.offsets.astype(p.dtype), (J, 3)).at[a].set(p)
+    return rot.quat_canonical(local), translations
+
+
+def spd_targets(character: Character, rotations: Float[Array, "joints 4"],
+                translations: Float[Array, "joints 3"] | None = None) -> Float[Array, "nj 4"]:
+    """Stable-PD targets for the character's physics joints from a skeleton pose: each joint's
+    child-body orientation relative to its parent body in that pose (``q_p^{-1} q_c``)."""
+    s = character_state(character, rotations, translations)
+    joints = character.model.joints
+    par = np.asarray(joints.parent)
+    chi = np.asarray(joints.child)
+    return rot.quat_multiply(rot.quat_conjugate(s.orientation[par]), s.orientation[chi])
+
+
+def export_mjcf(character: Character, state: BodyState, *, dt: float = 1 / 600) -> str:
+    """The character as MuJoCo XML (see :func:`jaxanim.physics.to_mjcf`)."""
+    return to_mjcf(character.model, state, dt=dt, name="character")

@@ -1,0 +1,94 @@
+"""Tests of jaxanim.character on the CMU clip: 70 kg in ~20 bodies with ball joints at the skeleton's
+joints, the unit inferred from the height, pose <-> state round trip against FK of the clip frame,
+stable-PD targets, the MJCF export loaded by MuJoCo with the same masses, a short passive drop onto
+the ground, and bad input."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxanim
+from jaxanim import JaxanimError, character, contact, control, physics
+
+from .conftest import shared_data_dir
+
+
+@pytest.fixture(scope="module")
+def cmu():
+    data = shared_data_dir()
+    skel, motion = jaxanim.read_bvh(data / "bvh" / "cmu_01_01_trim300.bvh")[:2]
+    q0, t0 = motion.rotations[0], motion.translations[0]
+    char, state = character.build_character(skel, q0, t0, ground=contact.make_ground())
+    return skel, q0, t0, char, state
+
+
+def test_bodies_joints_and_units(cmu):
+    skel, q0, t0, char, state = cmu
+    bodies = char.model.bodies
+    np.testing.assert_allclose(float(jnp.sum(bodies.mass)), 70.0, rtol=1e-12)
+    assert 18 <= char.num_bodies <= 24
+    assert char.model.joints.num_joints == char.num_bodies - 1
+    assert set(char.model.joints.types) == {"ball"}
+    # Unit: the rest pose is 1.7 m tall.
+    rest = jaxanim.forward_kinematics(skel, skel.rest_rotations())
+    pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions)])
+    np.testing.assert_allclose((pts[:, 1].max() - pts[:, 1].min()) * char.unit, 1.7, rtol=1e-12)
+    # Left and right limbs weigh the same (the CMU skeleton is nearly symmetric).
+    m = dict(zip(bodies.names, np.asarray(bodies.mass)))
+    for left, right in (("LeftUpLeg", "RightUpLeg"), ("LeftLeg", "RightLeg"), ("LeftArm", "RightArm")):
+        np.testing.assert_allclose(m[left], m[right], rtol=0.1)
+    assert m["LeftUpLeg"] > m["LeftLeg"] > m["LeftFoot"]
+    # Feet are boxes; every joint sits on its bodies: zero separation at assembly.
+    assert bodies.shapes[bodies.names.index("LeftFoot")] == "box"
+    assert float(jnp.max(physics.joint_error(char.model, state))) < 1e-12
+
+
+def test_pose_state_round_trip(cmu):
+    skel, q0, t0, char, state = cmu
+    q, t = character.character_pose(char, state, reference=q0)
+    a = jaxanim.forward_kinematics(skel, q0, t0)
+    b = jaxanim.forward_kinematics(skel, q, t)
+    np.testing.assert_allclose(b.positions, a.positions, atol=1e-9)
+    np.testing.assert_allclose(b.end_site_positions, a.end_site_positions, atol=1e-9)
+    # Metres: a body's centre lies on its bone, in the file's frame scaled by the unit.
+    i = char.model.bodies.names.index("LeftLeg")
+    j, k = skel.index("LeftLeg"), skel.index("LeftFoot")
+    mid = 0.5 * (a.positions[j] + a.positions[k]) * char.unit
+    np.testing.assert_allclose(state.position[i], mid, atol=1e-9)
+    # Stable-PD targets of the assembly pose: zero joint errors there.
+    e, _ = control.joint_errors(char.model.joints, state, character.spd_targets(char, q0, t0))
+    assert float(jnp.max(jnp.abs(e))) < 1e-9
+
+
+def test_mjcf_export_loads_in_mujoco_with_the_same_masses(cmu):
+    mujoco = pytest.importorskip("mujoco")
+    _, _, _, char, state = cmu
+    m = mujoco.MjModel.from_xml_string(character.export_mjcf(char, state))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    assert m.nbody == char.num_bodies + 1
+    np.testing.assert_allclose(m.body_mass[1:].sum(), 70.0, rtol=1e-12)
+    order = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in char.model.bodies.names]
+    np.testing.assert_allclose(d.xpos[order], state.position, atol=1e-9)
+    np.testing.assert_allclose(m.body_mass[order], char.model.bodies.mass, rtol=1e-12)
+
+
+def test_passive_drop_onto_the_ground(cmu):
+    _, _, _, char, state = cmu
+    run = physics.rollout(char.model, state, 1 / 120, 60, record_every=60)
+    assert run.result == physics.SimResult.successful and int(run.num_steps) == 60
+    assert float(jnp.max(physics.joint_error(char.model, run.final))) < 5e-3
+    lowest = float(jnp.min(contact._geometry(char.model.ground, char.model.bodies, run.final)[2]))
+    assert lowest > -1e-3, f"sank {lowest} m"
+
+
+def test_bad_input(cmu):
+    skel = cmu[0]
+    with pytest.raises(JaxanimError, match="total_mass: expected > 0"):
+        character.build_character(skel, total_mass=0.0)
+    with pytest.raises(JaxanimError, match="unit: expected > 0"):
+        character.build_character(skel, unit=-1.0)
+    with pytest.raises(JaxanimError, match=r"rotations: expected shape \(joints, 4\) = \(31, 4\)"):
+        character.build_character(skel, jnp.zeros((30, 4)))
