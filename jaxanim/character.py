@@ -26,6 +26,7 @@ in file units.
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -39,7 +40,10 @@ from .physics import PhysicsModel, make_model, to_mjcf
 from .rigid import BodyState, RigidBodies, make_state, shape_mass_properties
 from .skeleton import Skeleton
 
-__all__ = ["Character", "build_character", "character_pose", "character_state", "export_mjcf", "spd_targets"]
+__all__ = [
+    "Character", "build_character", "character_pose", "character_state", "export_mjcf", "root_body", "spd_targets",
+    "tracking_controller",
+]
 
 
 class Character(eqx.Module):
@@ -297,3 +301,59 @@ def spd_targets(character: Character, rotations: Float[Array, "joints 4"],
 def export_mjcf(character: Character, state: BodyState, *, dt: float = 1 / 600) -> str:
     """The character as MuJoCo XML (see :func:`jaxanim.physics.to_mjcf`)."""
     return to_mjcf(character.model, state, dt=dt, name="character")
+
+
+def root_body(character: Character) -> int:
+    """The free body (no joint's child)."""
+    children = set(character.model.joints.child)
+    return next(b for b in range(character.num_bodies) if b not in children)
+
+
+def tracking_controller(
+    character: Character,
+    motion,
+    dt: float,
+    *,
+    kp: float = 500.0,
+    kd: float = 50.0,
+    root_force: bool = True,
+    root_kp: float = 200.0,
+    root_angular_kp: float = 1000.0,
+    root_angular_kd: float = 140.0,
+) -> tuple:
+    """A stable-PD controller that tracks ``motion`` (looping) for :func:`jaxanim.physics.rollout`.
+
+    Every step ``k`` takes frame ``floor(k dt fps) mod frames`` of the clip: the joints' SPD
+    targets (:func:`spd_targets`) and, with ``root_force``, the root body's pose for an implicit
+    "hand of God" servo of stiffness ``root_kp`` per kg of the character (critically damped) and
+    ``root_angular_kp`` N m / rad with damping ``root_angular_kd`` N m s / rad.
+
+    Returns:
+        ``(controller, args)`` for ``rollout(..., controller=controller, controller_args=args)``;
+        ``args`` is a dict of arrays (``kp``, ``kd`` per joint, ``root_kp``, ``root_kd``,
+        ``root_angular_kp``, ``root_angular_kd``), so ``vmap`` can sweep the gains.
+    """
+    Q, T = motion.rotations, motion.translations
+    F = int(Q.shape[0])
+    targets_all = jax.vmap(lambda q, t: spd_targets(character, q, t))(Q, T)
+    states_all = jax.vmap(lambda q, t: character_state(character, q, t))(Q, T)
+    root = root_body(character)
+    root_x = states_all.position[:, root]
+    root_q = states_all.orientation[:, root]
+    mass = float(jnp.sum(character.model.bodies.mass))
+    nj = character.model.joints.num_joints
+    fps = float(motion.fps)
+    args = dict(
+        kp=jnp.full((nj,), kp), kd=jnp.full((nj,), kd),
+        root_kp=jnp.asarray(root_kp * mass if root_force else 0.0),
+        root_kd=jnp.asarray(2.0 * np.sqrt(root_kp) * mass if root_force else 0.0),
+        root_angular_kp=jnp.asarray(root_angular_kp if root_force else 0.0),
+        root_angular_kd=jnp.asarray(root_angular_kd if root_force else 0.0),
+    )
+
+    def controller(state, step, a):
+        f = jnp.floor(step * dt * fps).astype(jnp.int32) % F
+        servo = (root, root_x[f], root_q[f], a["root_kp"], a["root_kd"], a["root_angular_kp"], a["root_angular_kd"])
+        return dict(spd=(targets_all[f], a["kp"], a["kd"]), servo=servo)
+
+    return controller, args

@@ -155,14 +155,36 @@ def _motor_rows(model: PhysicsModel, state: BodyState, spd, h):
     return Jm, b, cfm
 
 
-def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=None):
-    """Velocities after the joint, stable-PD and (complementarity) contact impulses."""
+def _servo_rows(model: PhysicsModel, state: BodyState, servo, h):
+    """Stable-PD rows pulling one body to a world pose (the "hand of God"): ``(J [6, B, 6], b, cfm)``,
+    the soft constraint of :func:`_motor_rows` on the body's linear and angular velocity."""
+    body, x_t, q_t, kp_l, kd_l, kp_a, kd_a = servo
+    B = model.bodies.num_bodies
+    dtype = state.position.dtype
+    e_lin = x_t - state.position[body]
+    e_ang = rot.quat_to_rotvec(rot.quat_canonical(rot.quat_multiply(q_t, rot.quat_conjugate(state.orientation[body]))))
+    out_b, out_c = [], []
+    for e, kp, kd in ((e_lin, kp_l, kd_l), (e_ang, kp_a, kd_a)):
+        c = h * kp + kd
+        active = c > 0
+        c_safe = jnp.where(active, c, 1.0)
+        out_b.append(jnp.where(active, kp * e / c_safe, 0.0))
+        out_c.append(jnp.full((3,), jnp.where(active, 1.0 / (h * c_safe), 1.0), dtype))
+    rows = jnp.zeros((6, B, 6), dtype).at[np.arange(6), body, np.arange(6)].set(1.0)
+    return rows, jnp.concatenate(out_b), jnp.concatenate(out_c)
+
+
+def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=None, servo=None):
+    """Velocities after the joint, stable-PD, servo and (complementarity) contact impulses."""
     dtype = v.dtype
     Jj, bj = _joint_matrix(model, state, h)
     cfm_extra = jnp.zeros((Jj.shape[0],), dtype)
     if spd is not None:
         Jm, bm, cm = _motor_rows(model, state, spd, h)
         Jj, bj, cfm_extra = jnp.concatenate([Jj, Jm]), jnp.concatenate([bj, bm]), jnp.concatenate([cfm_extra, cm])
+    if servo is not None:
+        Js, bs, cs = _servo_rows(model, state, servo, h)
+        Jj, bj, cfm_extra = jnp.concatenate([Jj, Js]), jnp.concatenate([bj, bs]), jnp.concatenate([cfm_extra, cs])
     contact = model.ground.model == "complementarity"
     if contact:
         Jc, bc = contact_rows(model.ground, model.bodies, state, h)
@@ -198,13 +220,13 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=
     return V[:, :3], V[:, 3:]
 
 
-def _step(model: PhysicsModel, state: BodyState, force, torque, joint_torque, h, spd=None) -> BodyState:
+def _step(model: PhysicsModel, state: BodyState, force, torque, joint_torque, h, spd=None, servo=None) -> BodyState:
     torque = _apply_joint_torques(model, torque, joint_torque) if model.joints.num_joints else torque
     if model.ground.model == "penalty":
         f_c, tau_c = penalty_loads(model.ground, model.bodies, state)
         force, torque = force + f_c, torque + tau_c
     v, w, I_n = _free_velocities(model.bodies, state, force, torque, h)
-    v, w = _solve_constraints(model, state, v, w, I_n, h, spd)
+    v, w = _solve_constraints(model, state, v, w, I_n, h, spd, servo)
     return _integrate(model.bodies, state, v, w, I_n, h)
 
 
@@ -228,8 +250,8 @@ def _check_inputs(model: PhysicsModel, state: BodyState, force, torque, joint_to
 
 
 @eqx.filter_jit
-def _step_jit(model, state, force, torque, joint_torque, h, spd):
-    return _step(model, state, force, torque, joint_torque, h, spd)
+def _step_jit(model, state, force, torque, joint_torque, h, spd, servo):
+    return _step(model, state, force, torque, joint_torque, h, spd, servo)
 
 
 def step(
@@ -241,6 +263,7 @@ def step(
     torque: Float[ArrayLike, "B 3"] | None = None,
     joint_torque: Float[ArrayLike, "J 3"] | None = None,
     spd: tuple[Float[ArrayLike, "J 4"], Float[ArrayLike, " J"], Float[ArrayLike, " J"]] | None = None,
+    servo: tuple | None = None,
 ) -> BodyState:
     """Advance the articulated bodies by one step of ``dt`` seconds (see the module docstring).
 
@@ -258,6 +281,9 @@ def step(
             ``tau = k_p (e - h w) - k_d w`` is implicit in the new relative angular velocity ``w``
             and solved with the joint constraints (soft rows, the stable PD of Tan et al. 2011 in
             maximal coordinates); see :mod:`jaxanim.control` for ``e``.
+        servo: optional stable PD of one body towards a world pose, the root force and torque
+            ("hand of God"): ``(body (int), position [3], orientation [4], kp_lin, kd_lin,
+            kp_ang, kd_ang)`` (N/m, N s/m, N m/rad, N m s/rad), implicit like ``spd``.
 
     Returns:
         The new :class:`~jaxanim.rigid.BodyState`.
@@ -275,7 +301,17 @@ def step(
         check_shape("spd targets", targets, (Jn, 4), what=f"(J, 4) = ({Jn}, 4)")
         kp, kd = jnp.broadcast_to(kp, (Jn,)), jnp.broadcast_to(kd, (Jn,))
         spd = (targets, kp, kd)
-    return _step_jit(model, state, *loads, jnp.asarray(dt, dtype), spd)
+    if servo is not None:
+        if not (isinstance(servo, (tuple, list)) and len(servo) == 7):
+            raise JaxanimError("servo: expected (body, position [3], orientation [4], kp_lin, kd_lin, kp_ang, kd_ang)")
+        body = servo[0]
+        if not isinstance(body, (int, np.integer)) or not 0 <= body < model.bodies.num_bodies:
+            raise JaxanimError(f"servo: body must be an int in [0, {model.bodies.num_bodies}), got {body!r}")
+        x_t, q_t = jnp.asarray(servo[1], dtype), rot.quat_normalize(jnp.asarray(servo[2], dtype))
+        check_shape("servo position", x_t, (3,))
+        check_shape("servo orientation", q_t, (4,))
+        servo = (int(body), x_t, q_t, *(jnp.asarray(g, dtype) for g in servo[3:]))
+    return _step_jit(model, state, *loads, jnp.asarray(dt, dtype), spd, servo)
 
 
 class SimResult(eqx.Enumeration):
@@ -329,7 +365,7 @@ def _rollout(model, state, h, num_steps, record_every, controller, controller_ar
         k = count
         u = {} if controller is None else controller(s, k, controller_args)
         new = _step(model, s, jnp.asarray(u.get("force", zeros), dtype), jnp.asarray(u.get("torque", zeros), dtype),
-                    jnp.asarray(u.get("joint_torque", jt0), dtype), h, u.get("spd"))
+                    jnp.asarray(u.get("joint_torque", jt0), dtype), h, u.get("spd"), u.get("servo"))
         finite = _finite_state(new)
         fast = (jnp.max(jnp.abs(new.linear_velocity)) > max_speed) | (
             jnp.max(jnp.abs(new.angular_velocity)) > max_angular_speed
@@ -371,7 +407,8 @@ def rollout(
         num_steps: steps to take (static int, a multiple of ``record_every``).
         record_every: record the state every this many steps (static int >= 1).
         controller: ``controller(state, step, controller_args) -> dict`` with any of the keys
-            ``force``, ``torque``, ``joint_torque``, ``spd`` of :func:`step` (default: passive).
+            ``force``, ``torque``, ``joint_torque``, ``spd``, ``servo`` of :func:`step` (default:
+            passive; ``servo``'s body index must be a Python int).
             ``step`` is the step index (int array).
         controller_args: a pytree passed to the controller (``vmap`` over it to sweep gains).
         max_speed, max_angular_speed: a body faster than this (m/s, rad/s) counts as a blow-up.

@@ -5,6 +5,7 @@ the ground, and bad input."""
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -92,3 +93,19 @@ def test_bad_input(cmu):
         character.build_character(skel, unit=-1.0)
     with pytest.raises(JaxanimError, match=r"rotations: expected shape \(joints, 4\) = \(31, 4\)"):
         character.build_character(skel, jnp.zeros((30, 4)))
+
+
+def test_tracks_the_clip_with_stable_pd_and_the_root_force(cmu):
+    skel, q0, t0, char, state = cmu
+    motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")[1]
+    dt = 1 / 120
+    ctrl, args = character.tracking_controller(char, motion, dt)
+    run = physics.rollout(char.model, state, dt, 300, controller=ctrl, controller_args=args)
+    assert run.result == physics.SimResult.successful and int(run.num_steps) == 300
+    # Joint error: the angle between each simulated joint's relative rotation and the clip's, at the
+    # frame the controller tracked at that step.
+    frames = jnp.clip(jnp.floor(jnp.arange(1, 301) * dt * motion.fps).astype(jnp.int32), 0, motion.num_frames - 1)
+    targets = jax.vmap(lambda q, t: character.spd_targets(char, q, t))(motion.rotations, motion.translations)
+    errors = jax.vmap(lambda s, f: jnp.linalg.norm(control.joint_errors(char.model.joints, s, targets[f])[0], axis=-1))(
+        run.trajectory, frames)
+    assert float(jnp.mean(errors)) < 0.1, f"mean joint error {float(jnp.mean(errors)):.3f} rad"
