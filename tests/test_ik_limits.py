@@ -153,7 +153,7 @@ def test_soft_limits_approach_the_hard_solution(limited_problem):
     def soft(w):
         return ik.solve_ik(skel, targets, q, t, regularization=1e-3, limit_mode="soft", limit_weight=w, **kw)
 
-    sols = jax.vmap(soft)(jnp.asarray([0.0, 1.0, 1e2, 1e4]))
+    sols = jax.vmap(soft)(jnp.asarray([0.0, 1e2, 1e4]))
     viol = jax.vmap(lambda r: jnp.max(limit_violation(skel, kw["limits"], r)))(sols.rotations)
     assert np.all(np.diff(np.asarray(viol)) < 0), viol  # stiffer penalty, smaller violation
     assert float(viol[-1]) < 1e-4  # ~1/weight: 1.5e-5 here
