@@ -39,7 +39,7 @@ from ._errors import JaxanimError, check_shape
 from .contact import Ground, contact_rows, make_ground, penalty_loads, projected_gauss_seidel
 from .control import joint_errors
 from .joints import Joints, joint_rows
-from .rigid import BodyState, RigidBodies, _check_model, _free_velocities, _integrate
+from .rigid import BodyState, RigidBodies, _check_loads, _check_model, _free_velocities, _integrate
 
 __all__ = ["PhysicsModel", "Rollout", "SimResult", "joint_error", "make_model", "rollout", "step", "to_mjcf"]
 
@@ -231,22 +231,9 @@ def _step(model: PhysicsModel, state: BodyState, force, torque, joint_torque, h,
 
 
 def _check_inputs(model: PhysicsModel, state: BodyState, force, torque, joint_torque) -> list[Array]:
-    B = model.bodies.num_bodies
-    Jn = model.joints.num_joints
-    dtype = model.bodies.mass.dtype
-    loads = []
-    for name, value, rows, what in (("force", force, B, "B"), ("torque", torque, B, "B"),
-                                    ("joint_torque", joint_torque, Jn, "J")):
-        if value is None:
-            loads.append(jnp.zeros((rows, 3), dtype))
-        else:
-            arr = jnp.asarray(value, dtype)
-            check_shape(name, arr, (rows, 3), what=f"({what}, 3) = ({rows}, 3)")
-            loads.append(arr)
-    for name in ("position", "linear_velocity", "angular_velocity"):
-        check_shape(f"state.{name}", getattr(state, name), (B, 3), what=f"(B, 3) = ({B}, 3)")
-    check_shape("state.orientation", state.orientation, (B, 4), what=f"(B, 4) = ({B}, 4)")
-    return loads
+    B, Jn = model.bodies.num_bodies, model.joints.num_joints
+    loads = (("force", force, B, "B"), ("torque", torque, B, "B"), ("joint_torque", joint_torque, Jn, "J"))
+    return _check_loads(state, B, model.bodies.mass.dtype, loads)
 
 
 @eqx.filter_jit

@@ -434,16 +434,22 @@ def step_free(
     """
     _check_model(model)
     B = model.num_bodies
-    dtype = model.mass.dtype
-    loads = []
-    for name, value in (("force", force), ("torque", torque)):
+    force, torque = _check_loads(state, B, model.mass.dtype, (("force", force, B, "B"), ("torque", torque, B, "B")))
+    return _step_free(model, state, force, torque, jnp.asarray(dt, model.mass.dtype))
+
+
+def _check_loads(state: BodyState, B: int, dtype, loads) -> list[Array]:
+    """Check the state's shapes against ``B`` bodies and each ``(name, value, rows, dim)`` load
+    against ``[rows, 3]``; return the loads as arrays (zeros for ``None``)."""
+    out = []
+    for name, value, rows, dim in loads:
         if value is None:
-            loads.append(jnp.zeros((B, 3), dtype))
+            out.append(jnp.zeros((rows, 3), dtype))
         else:
             arr = jnp.asarray(value, dtype)
-            check_shape(name, arr, (B, 3), what=f"(B, 3) = ({B}, 3)")
-            loads.append(arr)
+            check_shape(name, arr, (rows, 3), what=f"({dim}, 3) = ({rows}, 3)")
+            out.append(arr)
     for name in ("position", "linear_velocity", "angular_velocity"):
         check_shape(f"state.{name}", getattr(state, name), (B, 3), what=f"(B, 3) = ({B}, 3)")
     check_shape("state.orientation", state.orientation, (B, 4), what=f"(B, 4) = ({B}, 4)")
-    return _step_free(model, state, loads[0], loads[1], jnp.asarray(dt, dtype))
+    return out
