@@ -35,9 +35,9 @@ from . import rotations as rot
 from ._errors import JaxanimError, check_shape
 from .contact import Ground
 from .fk import forward_kinematics
-from .joints import Joints
+from .joints import Joints, make_joints
 from .physics import PhysicsModel, make_model, to_mjcf
-from .rigid import BodyState, RigidBodies, make_state, shape_mass_properties
+from .rigid import BodyState, RigidBodies, make_bodies, make_state, shape_mass_properties
 from .skeleton import Skeleton
 
 __all__ = [
@@ -182,8 +182,6 @@ def build_character(
     vols = np.array([float(shape_mass_properties(k, s, density=1.0)[0]) for k, s in shapes])
     masses = total_mass * vols / vols.sum()
     names = tuple(skeleton.names[j] for j in body_joint)
-    from .rigid import make_bodies
-
     bodies = make_bodies(shapes, names=names, mass=masses, gravity=(0.0, -9.81, 0.0), dtype=jnp.float64)
     # Which body each joint moves with.
     index = {j: b for b, j in enumerate(body_joint)}
@@ -209,8 +207,6 @@ def build_character(
             continue
         parent = root if b in top else joint_body[skeleton.parents[j]]
         specs.append(dict(name=skeleton.names[j], type="ball", parent=int(parent), child=int(b), anchor=p_world[j]))
-    from .joints import make_joints
-
     joints: Joints = make_joints(bodies, state, specs)
     model = make_model(bodies, joints, ground=ground, erp=erp, cfm=cfm)
     return eqx.tree_at(lambda c: c.model, char, model, is_leaf=lambda x: x is None), state
