@@ -2,9 +2,9 @@
 
 Each benchmark is a function ``run(config: BenchConfig) -> list[Table]`` in a module of this package;
 :data:`REGISTRY` maps the names accepted on the command line to those functions (imported lazily, so
-one benchmark's missing dependency never stops another): ``fk``, ``jacobian`` (:mod:`benchmarks.fk`)
-and ``ik`` (:mod:`benchmarks.ik`). To add a benchmark (``oc``, ``physics``), write
-``benchmarks/<name>.py`` with such a function and add one :class:`BenchmarkSpec` line to
+one benchmark's missing dependency never stops another): ``fk``, ``jacobian`` (:mod:`benchmarks.fk`),
+``ik`` (:mod:`benchmarks.ik`) and ``oc`` (:mod:`benchmarks.oc`). To add a benchmark (``physics``),
+write ``benchmarks/<name>.py`` with such a function and add one :class:`BenchmarkSpec` line to
 :data:`REGISTRY`. Peers live in ``benchmarks/peers/`` and raise
 :class:`benchmarks.peers.PeerUnavailable` when they cannot be imported; the benchmark then reports
 them as ``skipped: <reason>`` rows.
