@@ -68,10 +68,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, PyTree
+from jaxtyping import Array, ArrayLike, Float, Int, PyTree
 
 from ._results import RESULTS
-from ._checks import _fmt
+from ._checks import _all_finite, _as_float, _fmt, _sym, _tree_where
 from ._linalg import cho_solve, cholesky, mm
 
 __all__ = ["TrajectorySolution", "ddp", "ilqr"]
@@ -126,35 +126,6 @@ class TrajectorySolution(eqx.Module):
     cost: Float[Array, ""]
     result: RESULTS
     stats: dict[str, Array]
-
-
-# --------------------------------------------------------------------------------------------
-# Small helpers.
-# --------------------------------------------------------------------------------------------
-
-
-def _as_float(name: str, x) -> Array:
-    x = jnp.asarray(x)
-    if jnp.issubdtype(x.dtype, jnp.complexfloating):
-        raise ValueError(f"{name}: expected a real array, got dtype {x.dtype}")
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
-
-
-def _sym(M: Array) -> Array:
-    return 0.5 * (M + jnp.swapaxes(M, -1, -2))
-
-
-def _all_finite(*xs: Array) -> Bool[Array, ""]:
-    out = jnp.array(True)
-    for x in xs:
-        out = out & jnp.all(jnp.isfinite(x))
-    return out
-
-
-def _tree_where(pred, a, b):
-    return jax.tree.map(lambda x, y: jnp.where(pred, x, y), a, b)
 
 
 class _Problem(eqx.Module):

@@ -69,7 +69,7 @@ from equinox import AbstractVar
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PyTree
 
 from ._results import RESULTS, Solution
-from ._checks import _fmt
+from ._checks import _all_finite, _fmt, _tree_where
 
 __all__ = [
     "AbstractLeastSquaresSolver",
@@ -244,13 +244,6 @@ def _cost_change(r: Float[Array, " m"], r_new: Float[Array, " m"]) -> Float[Arra
     return 0.5 * ((r_new - r) @ (r_new + r))
 
 
-def _all_finite(*xs: Array) -> Bool[Array, ""]:
-    out = jnp.array(True)
-    for x in xs:
-        out = out & jnp.all(jnp.isfinite(x))
-    return out
-
-
 class _State(eqx.Module):
     """Solver state at the iterate ``y`` (shared by all the own solvers)."""
 
@@ -331,10 +324,6 @@ def _tolerances(solver, dtype) -> tuple[Float[Array, ""], Float[Array, ""]]:
     rtol = jnp.maximum(jnp.asarray(solver.rtol, dtype), 4 * eps)
     atol = jnp.asarray(solver.atol, dtype)
     return rtol, atol
-
-
-def _tree_where(pred: Bool[Array, ""], a: PyTree, b: PyTree) -> PyTree:
-    return jax.tree.map(lambda x, y: jnp.where(pred, x, y), a, b)
 
 
 # --------------------------------------------------------------------------------------------

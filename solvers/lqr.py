@@ -79,7 +79,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._results import RESULTS
-from ._checks import _fmt
+from ._checks import _all_finite, _as_float, _fmt, _sym, _tree_where
 from ._linalg import cho_solve, cholesky, mm
 
 __all__ = ["LQRSolution", "RiccatiSolution", "care", "dare", "lqr"]
@@ -156,17 +156,6 @@ class RiccatiSolution(eqx.Module):
 # --------------------------------------------------------------------------------------------
 
 
-def _as_float(name: str, x) -> Array:
-    if x is None:
-        raise ValueError(f"{name}: expected an array, got None")
-    x = jnp.asarray(x)
-    if jnp.issubdtype(x.dtype, jnp.complexfloating):
-        raise ValueError(f"{name}: expected a real array, got dtype {x.dtype}")
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
-
-
 def _check(name: str, x: Array, dims: tuple[str, ...], sizes: dict[str, int]) -> None:
     expected = tuple(sizes[d] for d in dims)
     if x.shape != expected:
@@ -188,23 +177,8 @@ def _common_dtype(*xs: Array):
 # --------------------------------------------------------------------------------------------
 
 
-def _sym(M: Float[Array, "n n"]) -> Float[Array, "n n"]:
-    return 0.5 * (M + M.T)
-
-
-def _all_finite(*xs: Array) -> Bool[Array, ""]:
-    out = jnp.array(True)
-    for x in xs:
-        out = out & jnp.all(jnp.isfinite(x))
-    return out
-
-
 def _amax(x: Array) -> Float[Array, ""]:
     return jnp.max(jnp.abs(x))
-
-
-def _tree_where(pred: Bool[Array, ""], a, b):
-    return jax.tree.map(lambda x, y: jnp.where(pred, x, y), a, b)
 
 
 # --------------------------------------------------------------------------------------------

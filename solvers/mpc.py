@@ -21,7 +21,6 @@ plant (the model itself unless ``plant`` is given) and is ``eqx.filter_jit``-ed.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import equinox as eqx
 import jax
