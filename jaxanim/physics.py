@@ -126,6 +126,19 @@ def _joint_matrix(model: PhysicsModel, state: BodyState, h):
     return Jd, -(model.erp / h) * g[jj, rr]
 
 
+def _soft_gains(e, kp, kd, h):
+    """The soft constraint ``J v + cfm lambda = b`` of the implicit PD law
+    ``tau = k_p (e - h J v) - k_d J v`` on the impulse ``lambda = h tau``: ``b = k_p e / (h k_p +
+    k_d)``, ``cfm = 1 / (h (h k_p + k_d))``, broadcast to ``e``'s shape, with the mask of driven
+    rows (``h k_p + k_d > 0``); rows not driven get ``b = 0``, ``cfm = 1`` and must have ``J = 0``."""
+    c = jnp.broadcast_to(h * kp + kd, e.shape)
+    active = c > 0
+    c_safe = jnp.where(active, c, 1.0)
+    b = jnp.where(active, jnp.broadcast_to(kp, e.shape) * e / c_safe, 0.0)
+    cfm = jnp.where(active, 1.0 / (h * c_safe), 1.0)
+    return b, cfm, active
+
+
 def _motor_rows(model: PhysicsModel, state: BodyState, spd, h):
     """Stable-PD rows on every joint's relative angular velocity: ``(J [3J, B, 6], b [3J], cfm [3J])``.
 
@@ -138,13 +151,10 @@ def _motor_rows(model: PhysicsModel, state: BodyState, spd, h):
     Jn, B = joints.num_joints, model.bodies.num_bodies
     dtype = state.position.dtype
     e, _ = joint_errors(joints, state, rot.quat_normalize(targets))
-    c = h * kp + kd  # [J]
-    active = c > 0
-    c_safe = jnp.where(active, c, 1.0)
-    b = jnp.where(active[:, None], kp[:, None] * e / c_safe[:, None], 0.0).reshape(3 * Jn)
-    cfm = jnp.repeat(jnp.where(active, 1.0 / (h * c_safe), 1.0), 3)
+    b, cfm, active = _soft_gains(e, kp[:, None], kd[:, None], h)
+    b, cfm = b.reshape(3 * Jn), cfm.reshape(3 * Jn)
     eye = jnp.eye(3, dtype=dtype)
-    blk = jnp.where(active[:, None, None], eye[None], 0.0)  # [J, 3, 3]
+    blk = jnp.where(active[:, :, None], eye[None], 0.0)  # [J, 3, 3], zero rows where not driven
     rows = np.arange(3 * Jn)
     chi = np.repeat(np.asarray(joints.child), 3)
     par = np.repeat(np.asarray(joints.parent), 3)
@@ -163,15 +173,10 @@ def _servo_rows(model: PhysicsModel, state: BodyState, servo, h):
     dtype = state.position.dtype
     e_lin = x_t - state.position[body]
     e_ang = rot.quat_to_rotvec(rot.quat_canonical(rot.quat_multiply(q_t, rot.quat_conjugate(state.orientation[body]))))
-    out_b, out_c = [], []
-    for e, kp, kd in ((e_lin, kp_l, kd_l), (e_ang, kp_a, kd_a)):
-        c = h * kp + kd
-        active = c > 0
-        c_safe = jnp.where(active, c, 1.0)
-        out_b.append(jnp.where(active, kp * e / c_safe, 0.0))
-        out_c.append(jnp.full((3,), jnp.where(active, 1.0 / (h * c_safe), 1.0), dtype))
-    rows = jnp.zeros((6, B, 6), dtype).at[np.arange(6), body, np.arange(6)].set(1.0)
-    return rows, jnp.concatenate(out_b), jnp.concatenate(out_c)
+    e = jnp.stack([e_lin, e_ang])  # [2, 3]
+    b, cfm, active = _soft_gains(e, jnp.stack([kp_l, kp_a])[:, None], jnp.stack([kd_l, kd_a])[:, None], h)
+    rows = jnp.zeros((6, B, 6), dtype).at[np.arange(6), body, np.arange(6)].set(active.reshape(6).astype(dtype))
+    return rows, b.reshape(6), cfm.reshape(6)
 
 
 def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=None, servo=None):

@@ -155,3 +155,13 @@ def _with_nan(state):
     return rigid.BodyState(position=state.position.at[1, 0].set(jnp.nan), orientation=state.orientation,
                            linear_velocity=state.linear_velocity, angular_velocity=state.angular_velocity,
                            time=state.time)
+
+
+def test_servo_and_spd_with_zero_gains_do_nothing():
+    model, state, targets = _chain()
+    state = physics.step(model, state, 1 / 120)  # moving a little
+    plain = physics.step(model, state, 1 / 120)
+    servo = physics.step(model, state, 1 / 120, spd=(targets, 0.0, 0.0),
+                         servo=(0, jnp.ones(3), jnp.asarray([1.0, 0, 0, 0]), 0.0, 0.0, 0.0, 0.0))
+    for name in ("position", "orientation", "linear_velocity", "angular_velocity"):
+        np.testing.assert_allclose(getattr(servo, name), getattr(plain, name), atol=1e-12, err_msg=name)
