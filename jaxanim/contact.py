@@ -31,6 +31,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._errors import JaxanimError
+from .joints import _perpendiculars
 from .rigid import BodyState, RigidBodies
 from . import rotations as rot
 
@@ -126,13 +127,6 @@ def contact_points(bodies: RigidBodies) -> tuple[np.ndarray, Array, Array]:
     return np.asarray(owners, int), jnp.concatenate(locals_), jnp.concatenate(radii)
 
 
-def _tangents(n: Float[Array, " 3"]) -> tuple[Array, Array]:
-    helper = jnp.where(jnp.abs(n[0]) < 0.9, jnp.array([1.0, 0.0, 0.0], n.dtype), jnp.array([0.0, 1.0, 0.0], n.dtype))
-    t1 = jnp.cross(n, helper)
-    t1 = t1 / jnp.linalg.norm(t1)
-    return t1, jnp.cross(n, t1)
-
-
 def _geometry(ground: Ground, bodies: RigidBodies, state: BodyState):
     """Per contact point: owner (static), lever ``c - x`` [K, 3], distance ``phi`` [K], velocity [K, 3]."""
     owner, local, radius = contact_points(bodies)
@@ -167,7 +161,7 @@ def contact_rows(ground: Ground, bodies: RigidBodies, state: BodyState, h) -> tu
     K = owner.size
     B = bodies.num_bodies
     n = ground.normal
-    t1, t2 = _tangents(n)
+    t1, t2 = (t[0] for t in _perpendiculars(n[None]))
     dirs = jnp.stack([n, t1, t2])  # [3, 3]
     lin = jnp.broadcast_to(dirs[None], (K, 3, 3))
     ang = jnp.cross(r[:, None, :], lin)  # (r x d) . omega
