@@ -294,9 +294,11 @@ def spd_targets(character: Character, rotations: Float[Array, "joints 4"],
     return rot.quat_multiply(rot.quat_conjugate(s.orientation[par]), s.orientation[chi])
 
 
-def export_mjcf(character: Character, state: BodyState, *, dt: float = 1 / 600) -> str:
-    """The character as MuJoCo XML (see :func:`jaxanim.physics.to_mjcf`)."""
-    return to_mjcf(character.model, state, dt=dt, name="character")
+def export_mjcf(character: Character, state: BodyState, *, dt: float = 1 / 600, stiffness=None, damping=None) -> str:
+    """The character as MuJoCo XML (see :func:`jaxanim.physics.to_mjcf`; ``stiffness`` and
+    ``damping`` hold the joints at the pose of ``state``, the ground plane is exported with
+    contacts when the character has one)."""
+    return to_mjcf(character.model, state, dt=dt, name="character", stiffness=stiffness, damping=damping)
 
 
 def root_body(character: Character) -> int:
