@@ -55,10 +55,13 @@ class Ground(eqx.Module):
         damping: penalty ``k_d``, N s/m.
         erp: fraction of the penetration (beyond ``slop``) removed per step (complementarity).
         slop: penetration tolerated without correction, metres (complementarity).
+        max_points: solve only this many contact points per step, the lowest ones (static;
+            ``None``: all; complementarity).
     """
 
     model: str = eqx.field(static=True)
     iterations: int = eqx.field(static=True)
+    max_points: int | None = eqx.field(static=True)
     normal: Float[Array, " 3"]
     offset: Float[Array, ""]
     friction: Float[Array, ""]
@@ -79,9 +82,15 @@ def make_ground(
     erp: float = 0.2,
     slop: float = 1e-4,
     iterations: int = 30,
+    max_points: int | None = None,
     dtype=None,
 ) -> Ground:
     """A :class:`Ground`; the normal is normalised (default ``+Y``, BVH's up axis).
+
+    ``max_points`` (complementarity) caps the contact points solved per step to the lowest ones
+    (smallest signed distance): the cost of the contact solve grows with them, and a standing
+    character touches the ground with a few (two box feet: 8 corners). Points beyond the cap are
+    not held up in that step (a fallen character lying on more points sinks there).
 
     Raises:
         JaxanimError: an unknown model, a zero normal, negative friction / stiffness / damping /
@@ -99,9 +108,12 @@ def make_ground(
         raise JaxanimError(f"erp: expected a value in [0, 1], got {erp!r}")
     if not isinstance(iterations, (int, np.integer)) or iterations < 1:
         raise JaxanimError(f"iterations: expected an int >= 1, got {iterations!r}")
+    if max_points is not None and (not isinstance(max_points, (int, np.integer)) or max_points < 1):
+        raise JaxanimError(f"max_points: expected None or an int >= 1, got {max_points!r}")
     dtype = jnp.asarray(0.0).dtype if dtype is None else jnp.dtype(dtype)
     a = lambda v: jnp.asarray(v, dtype)  # noqa: E731
-    return Ground(model=model, iterations=int(iterations), normal=a(n / np.linalg.norm(n)), offset=a(offset),
+    return Ground(model=model, iterations=int(iterations), max_points=None if max_points is None else int(max_points),
+                  normal=a(n / np.linalg.norm(n)), offset=a(offset),
                   friction=a(friction), stiffness=a(stiffness), damping=a(damping), erp=a(erp), slop=a(slop))
 
 
@@ -154,43 +166,67 @@ def penalty_loads(ground: Ground, bodies: RigidBodies, state: BodyState) -> tupl
     return force, torque
 
 
-def contact_rows(ground: Ground, bodies: RigidBodies, state: BodyState, h) -> tuple[Array, Array]:
-    """The complementarity rows: ``(J [3K, B, 6], target [3K])``, rows ordered (normal, t1, t2)
-    per point; ``target`` is ``b`` for the normal rows and 0 for the tangent rows."""
+def contact_rows(ground: Ground, bodies: RigidBodies, state: BodyState, h) -> tuple[Array, Array, Array]:
+    """The complementarity rows in compact form: ``(owner [3K], rows [3K, 6], target [3K])``: row
+    ``u`` acts on body ``owner[u]``'s ``[v; omega]``; rows are ordered (normal, t1, t2) per point;
+    ``target`` is ``b`` for the normal rows and 0 for the tangent rows. With ``ground.max_points``
+    only the lowest points, ``K = max_points``."""
     owner, r, phi, _ = _geometry(ground, bodies, state)
-    K = owner.size
-    B = bodies.num_bodies
+    owner = jnp.asarray(owner)
+    if ground.max_points is not None and ground.max_points < phi.shape[0]:
+        idx = jax.lax.top_k(-phi, ground.max_points)[1]
+        owner, r, phi = owner[idx], r[idx], phi[idx]
+    K = phi.shape[0]
     n = ground.normal
     t1, t2 = (t[0] for t in _perpendiculars(n[None]))
     dirs = jnp.stack([n, t1, t2])  # [3, 3]
     lin = jnp.broadcast_to(dirs[None], (K, 3, 3))
     ang = jnp.cross(r[:, None, :], lin)  # (r x d) . omega
     rows = jnp.concatenate([lin, ang], axis=-1).reshape(3 * K, 6)
-    J = jnp.zeros((3 * K, B, 6), rows.dtype).at[np.arange(3 * K), np.repeat(owner, 3)].set(rows)
     b_n = jnp.where(phi > 0, -phi / h, (ground.erp / h) * jnp.maximum(-phi - ground.slop, 0.0))
     target = jnp.stack([b_n, jnp.zeros_like(b_n), jnp.zeros_like(b_n)], axis=1).reshape(3 * K)
-    return J, target
+    return jnp.repeat(owner, 3), rows, target
 
 
-def projected_gauss_seidel(S: Array, rhs: Array, mu: Array, iterations: int) -> Array:
-    """Impulses ``lambda [3K]`` of the contact problem ``w = S lambda - rhs``: per point
+def projected_gauss_seidel(S: Array, rhs: Array, mu: Array, iterations: int, num_single: int = 0) -> Array:
+    """Impulses ``lambda [3K + num_single]`` of the contact problem ``w = S lambda - rhs``: per point
     ``lambda_n >= 0``, ``w_n >= 0``, ``lambda_n w_n = 0`` and ``|(lambda_t1, lambda_t2)| <= mu
-    lambda_n`` with the tangential ``w_t`` driven to zero where it is not on the disc's edge."""
-    K = rhs.shape[0] // 3
+    lambda_n`` with the tangential ``w_t`` driven to zero where it is not on the disc's edge.
+
+    Each sweep visits the points in order; at a point the normal row, then the two tangent rows
+    are relaxed in turn (Gauss-Seidel within the point too, from one ``3 x 3K`` product), then the
+    tangential impulse is projected onto the disc of radius ``mu lambda_n``. The last
+    ``num_single`` rows are one-sided rows without friction (``lambda >= 0``, ``w >= 0``,
+    ``lambda w = 0``; joint limits), relaxed after the points in each sweep. ``iterations`` sweeps
+    from zero (static, so it vmaps)."""
+    n = rhs.shape[0]
+    K = (n - num_single) // 3
+    S3 = S[: 3 * K].reshape(K, 3, n)
+    blocks = S3[:, :, : 3 * K].reshape(K, 3, K, 3)[np.arange(K), :, np.arange(K), :]  # [K, 3, 3]
+    rhs3 = rhs[: 3 * K].reshape(K, 3)
     diag = jnp.diagonal(S)
 
     def point(k, lam):
-        i = 3 * k
-        ln = jnp.maximum(lam[i] + (rhs[i] - S[i] @ lam) / diag[i], 0.0)
-        lam = lam.at[i].set(ln)
-        l1 = lam[i + 1] + (rhs[i + 1] - S[i + 1] @ lam) / diag[i + 1]
-        lam = lam.at[i + 1].set(l1)
-        l2 = lam[i + 2] + (rhs[i + 2] - S[i + 2] @ lam) / diag[i + 2]
+        w = S3[k] @ lam - rhs3[k]  # [3]
+        d = blocks[k]
+        old = jax.lax.dynamic_slice(lam, (3 * k,), (3,))
+        ln = jnp.maximum(old[0] - w[0] / d[0, 0], 0.0)
+        dn = ln - old[0]
+        l1 = old[1] - (w[1] + d[1, 0] * dn) / d[1, 1]
+        d1 = l1 - old[1]
+        l2 = old[2] - (w[2] + d[2, 0] * dn + d[2, 1] * d1) / d[2, 2]
         norm = jnp.sqrt(l1 * l1 + l2 * l2)
         scale = jnp.where(norm > mu * ln, mu * ln / jnp.where(norm > 0, norm, 1.0), 1.0)
-        return lam.at[i + 1].set(l1 * scale).at[i + 2].set(l2 * scale)
+        return jax.lax.dynamic_update_slice(lam, jnp.stack([ln, l1 * scale, l2 * scale]), (3 * k,))
+
+    def single(i, lam):
+        return lam.at[i].set(jnp.maximum(lam[i] - (S[i] @ lam - rhs[i]) / diag[i], 0.0))
 
     def sweep(_, lam):
-        return jax.lax.fori_loop(0, K, point, lam)
+        if K:
+            lam = jax.lax.fori_loop(0, K, point, lam)
+        if num_single:
+            lam = jax.lax.fori_loop(3 * K, n, single, lam)
+        return lam
 
     return jax.lax.fori_loop(0, iterations, sweep, jnp.zeros_like(rhs))

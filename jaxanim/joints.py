@@ -17,6 +17,22 @@ bodies' velocities ``[v_p, omega_p, v_c, omega_c]`` (world frame) and come with 
   ``omega_c - omega_p``, ``g`` the rotation vector of ``q_c (q_p q_rest)^{-1}``.
 
 Rows are padded to 6 per joint; which rows exist is static (``Joints.row_mask``).
+
+**Limits** (one-sided rows, solved with the contacts as a complementarity problem, see
+:mod:`jaxanim.physics`), measured on the deviation ``q_d = (q_p^{-1} q_c) q_rest^{-1}`` from the
+assembly pose (parent frame):
+
+- **hinge range** ``[lower, upper]`` on the hinge angle ``theta`` (the rotation of ``q_d`` about
+  the hinge axis, zero at assembly): one row ``+-n_p' (omega_c - omega_p)`` on the nearer bound;
+- **ball swing cone**: the angle ``alpha`` between the parent's and the child's copies of the
+  joint's ``axis`` (e.g. the bone direction) stays below ``swing``: one row ``-s' (omega_c -
+  omega_p)`` with ``s = (n_p x n_c) / |n_p x n_c|`` (``alpha' = s' (omega_c - omega_p)``);
+- **ball twist** ``[lower, upper]`` on the twist of ``q_d`` about the axis (swing-twist
+  decomposition): one row on the bisector of ``n_p`` and ``n_c``, nearer bound.
+
+Each row has a signed distance to its bound ``phi`` (radians, negative: violated) and, like a
+contact, the target ``-phi / h`` while inside (it may reach the bound but not pass it within the
+step) and ``(erp / h) (-phi)`` when violated.
 """
 
 from __future__ import annotations
@@ -33,7 +49,7 @@ from . import rotations as rot
 from ._errors import JaxanimError
 from .rigid import BodyState, RigidBodies
 
-__all__ = ["JOINT_TYPES", "Joints", "joint_rows", "make_joints"]
+__all__ = ["JOINT_TYPES", "Joints", "joint_rows", "limit_rows", "make_joints"]
 
 JOINT_TYPES = ("ball", "hinge", "universal", "fixed")
 _ANGULAR_ROWS = {"ball": 0, "hinge": 2, "universal": 1, "fixed": 3}
@@ -55,6 +71,11 @@ class Joints(eqx.Module):
         axis_child: ``[J, 3]`` unit axis in the child frame: the hinge axis, or the universal
             joint's second axis.
         rest: ``[J, 4]`` the relative orientation ``q_p^{-1} q_c`` at assembly (wxyz).
+        limited: ``[J]`` whether the joint has limits (static): a limited hinge has one limit row,
+            a limited ball joint two (swing and twist).
+        lower, upper: ``[J]`` the hinge angle range, or the ball joint's twist range (radians;
+            ``-inf`` / ``inf``: none).
+        swing: ``[J]`` the ball joint's swing-cone half angle (radians; ``inf``: none).
     """
 
     names: tuple[str, ...] = eqx.field(static=True)
@@ -66,6 +87,10 @@ class Joints(eqx.Module):
     axis_parent: Float[Array, "J 3"]
     axis_child: Float[Array, "J 3"]
     rest: Float[Array, "J 4"]
+    limited: tuple[bool, ...] = eqx.field(static=True)
+    lower: Float[Array, " J"]
+    upper: Float[Array, " J"]
+    swing: Float[Array, " J"]
 
     @property
     def num_joints(self) -> int:
@@ -115,17 +140,22 @@ def make_joints(bodies: RigidBodies, state: BodyState, specs: Sequence[dict]) ->
             ``child`` (a body name or index), ``anchor`` (``[3]`` world point), and ``axis``
             (``[3]`` world direction; hinge axis, or the universal joint's parent-side axis) and
             ``axis2`` (the universal joint's child-side axis, perpendicular to ``axis``).
+            Limits (radians, see the module docstring): a hinge's ``limit`` ``(lower, upper)``;
+            a ball joint's ``swing`` (cone half angle in ``(0, pi]``) and / or ``twist``
+            ``(lower, upper)`` about its ``axis`` (required with either; e.g. the bone direction).
 
     Raises:
         JaxanimError: unknown types or bodies, missing or malformed anchors / axes, a universal
-            joint whose axes are not perpendicular, a body that is the child of two joints, or a
-            joint between a body and itself.
+            joint whose axes are not perpendicular, a body that is the child of two joints, a
+            joint between a body and itself, or limits that are malformed or not of the joint's
+            type (``limit`` is for hinges, ``swing`` / ``twist`` for ball joints).
     """
     x = np.asarray(state.position, float)
     q = np.asarray(state.orientation, float)
     R = np.asarray(rot.quat_to_matrix(jnp.asarray(q)))
     names, types, parents, children = [], [], [], []
     ap, ac, ep, ec, rest = [], [], [], [], []
+    limited, lower, upper, swing = [], [], [], []
     for i, spec in enumerate(specs):
         spec = dict(spec)
         name = spec.get("name", f"joint{i}")
@@ -160,6 +190,30 @@ def make_joints(bodies: RigidBodies, state: BodyState, specs: Sequence[dict]) ->
             axis2 = _unit(f"specs[{i}].axis2", spec["axis2"])
             if abs(axis @ axis2) > 1e-6:
                 raise JaxanimError(f"specs[{i}]: a universal joint's axis and axis2 must be perpendicular")
+        lo, hi, sw = -np.inf, np.inf, np.inf
+        has_limit = False
+        if "limit" in spec:
+            if kind != "hinge":
+                raise JaxanimError(f"specs[{i}].limit: a range is for hinge joints (ball joints: swing / twist)")
+            lo, hi = _range(f"specs[{i}].limit", spec["limit"])
+            has_limit = True
+        if "swing" in spec or "twist" in spec:
+            if kind != "ball":
+                raise JaxanimError(f"specs[{i}]: swing / twist limits are for ball joints")
+            if "axis" not in spec:
+                raise JaxanimError(f"specs[{i}].axis: missing (a ball joint's swing / twist limits need an axis)")
+            axis = axis2 = _unit(f"specs[{i}].axis", spec["axis"])
+            if "swing" in spec:
+                sw = float(spec["swing"])
+                if not 0 < sw <= np.pi:
+                    raise JaxanimError(f"specs[{i}].swing: expected a cone half angle in (0, pi], got {spec['swing']!r}")
+            if "twist" in spec:
+                lo, hi = _range(f"specs[{i}].twist", spec["twist"])
+            has_limit = True
+        limited.append(has_limit)
+        lower.append(lo)
+        upper.append(hi)
+        swing.append(sw)
         names.append(str(name))
         types.append(kind)
         parents.append(p)
@@ -176,8 +230,18 @@ def make_joints(bodies: RigidBodies, state: BodyState, specs: Sequence[dict]) ->
     return Joints(
         names=tuple(names), types=tuple(types), parent=tuple(parents), child=tuple(children),
         anchor_parent=stack(ap, 3), anchor_child=stack(ac, 3), axis_parent=stack(ep, 3), axis_child=stack(ec, 3),
-        rest=stack(rest, 4),
+        rest=stack(rest, 4), limited=tuple(limited), lower=jnp.asarray(lower, dtype), upper=jnp.asarray(upper, dtype),
+        swing=jnp.asarray(swing, dtype),
     )
+
+
+def _range(name: str, value) -> tuple[float, float]:
+    v = np.asarray(value, float)
+    if v.shape != (2,) or not v[0] < v[1]:
+        raise JaxanimError(f"{name}: expected (lower, upper) with lower < upper (radians), got {value!r}")
+    if not (v[0] < np.pi and v[1] > -np.pi):
+        raise JaxanimError(f"{name}: the range {value!r} excludes every angle in (-pi, pi]")
+    return float(v[0]), float(v[1])
 
 
 def _perpendiculars(n: Float[Array, "J 3"]) -> tuple[Array, Array]:
@@ -239,3 +303,51 @@ def joint_rows(joints: Joints, state: BodyState) -> tuple[Array, Array, Array]:
     J_parent = jnp.concatenate([lin_p, jnp.concatenate([zeros33, -ang_c], axis=-1)], axis=1)
     J_child = jnp.concatenate([lin_c, jnp.concatenate([zeros33, ang_c], axis=-1)], axis=1)
     return J_parent, J_child, jnp.concatenate([g_lin, g_ang], axis=-1)
+
+
+def limit_rows(joints: Joints, state: BodyState) -> tuple[np.ndarray, Array, Array]:
+    """The limit rows at ``state``: ``(joint [L] (static), axis [L, 3], phi [L])``; row ``l`` reads
+    ``axis[l]' (omega_c - omega_p) >= ...`` for joint ``joint[l]`` and ``phi[l]`` is its signed
+    distance to the bound (radians, clipped to ``[-pi, 2 pi]``; see the module docstring)."""
+    lim = np.asarray(joints.limited, bool)
+    if not lim.any():
+        return np.zeros((0,), int), jnp.zeros((0, 3), state.position.dtype), jnp.zeros((0,), state.position.dtype)
+    dtype = state.position.dtype
+    par = np.asarray(joints.parent)
+    chi = np.asarray(joints.child)
+    world = jnp.asarray(par < 0)[:, None]
+    qp = jnp.where(world, jnp.array([1.0, 0.0, 0.0, 0.0], dtype), state.orientation[np.maximum(par, 0)])
+    qc = state.orientation[chi]
+    q_rel = rot.quat_multiply(rot.quat_conjugate(qp), qc)
+    q_dev = rot.quat_canonical(rot.quat_multiply(q_rel, rot.quat_conjugate(joints.rest)))  # parent frame
+    e = joints.axis_parent
+    twist = 2.0 * jnp.arctan2(jnp.sum(q_dev[:, 1:] * e, axis=-1), q_dev[:, 0])
+    twist = jnp.where(twist > jnp.pi, twist - 2 * jnp.pi, twist)
+    n_p = rot.quat_apply(qp, e)
+    n_c = rot.quat_apply(qc, joints.axis_child)
+    cr = jnp.cross(n_p, n_c)
+    sin = jnp.linalg.norm(cr, axis=-1)
+    alpha = jnp.arctan2(sin, jnp.sum(n_p * n_c, axis=-1))
+    t1, _ = _perpendiculars(n_p)
+    s = jnp.where((sin > 1e-12)[:, None], cr / jnp.where(sin > 1e-12, sin, 1.0)[:, None], t1)
+    bis = n_p + n_c
+    bis = bis / jnp.maximum(jnp.linalg.norm(bis, axis=-1, keepdims=True), 1e-12)
+    clip = lambda x: jnp.clip(x, -jnp.pi, 2 * jnp.pi)  # noqa: E731
+    d_lo, d_hi = clip(twist - joints.lower), clip(joints.upper - twist)
+    lower_near = d_lo < d_hi
+    range_phi = jnp.where(lower_near, d_lo, d_hi)
+    sign = jnp.where(lower_near, 1.0, -1.0)[:, None]
+    hinge_axis = sign * n_p
+    twist_axis = sign * bis
+    swing_phi = clip(joints.swing - alpha)
+    idx, axes, phis = [], [], []
+    for j in np.nonzero(lim)[0]:
+        if joints.types[j] == "hinge":
+            idx.append(j)
+            axes.append(hinge_axis[j])
+            phis.append(range_phi[j])
+        else:
+            idx += [j, j]
+            axes += [-s[j], twist_axis[j]]
+            phis += [swing_phi[j], range_phi[j]]
+    return np.asarray(idx, int), jnp.stack(axes), jnp.stack(phis)

@@ -14,17 +14,26 @@ eq. 6.28 (maximal coordinates, velocity-level constraints):
    velocity re-expressed at ``q_{n+1}`` with the angular momentum ``I_n omega`` of each body
    (the gyroscopic term in momentum form, as :func:`~jaxanim.rigid.step_free`).
 
-**Solver for step 2**: the ``R x R`` system (``R`` = constraint rows, 57 for a 19-ball-joint tree)
-is assembled densely and solved exactly by a Cholesky factorisation (``O(R^3)``; exact, no
-iteration count to tune). ``cfm`` keeps it positive definite for redundant rows (closed loops).
-With complementarity contact (:mod:`jaxanim.contact`) the contact rows join the system: the joint
-block is eliminated exactly (Schur complement) and the contact impulses are found by projected
-Gauss-Seidel with a fixed number of sweeps; penalty contact instead adds forces to the loads of
-step 1.
+**Solver for step 2**: exact and ``O(bodies)``. The joints must form a forest (each body the child
+of at most one joint, no cycles). Bodies are eliminated from the leaves to the roots: each child's
+articulated ``6 x 6`` inertia is folded into its parent through its joint's small system
+(``k x k``, ``k`` = the joint's rows), then velocities and impulses are back-substituted from the
+roots (:func:`_tree_solve`; the block elimination of the augmented system ``[[M, -J'], [J, cfm]]``
+in the order of its tree, Baraff 1996, without fill-in). Bodies at the same depth are processed
+together, so a 21-body character takes as many passes as its tree is deep. ``cfm`` keeps each
+joint's system positive definite. Stable-PD rows (``spd``) are soft rows of their joint's system;
+the root servo's soft rows are folded into its body's inertia.
+
+**One-sided rows** (complementarity contact, :mod:`jaxanim.contact`, and joint limits,
+:func:`~jaxanim.joints.limit_rows`): the same solve gives each row's effect ``Y = H^{-1} J_u'`` on
+the velocities with the joints held exactly, hence their Delassus matrix ``J_u Y`` (``U x U``), on
+which projected Gauss-Seidel runs a fixed number of sweeps (``ground.iterations``). Penalty
+contact instead adds forces to the loads of step 1.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -38,7 +47,7 @@ from . import rotations as rot
 from ._errors import JaxanimError, check_shape
 from .contact import Ground, contact_rows, make_ground, penalty_loads, projected_gauss_seidel
 from .control import joint_errors
-from .joints import Joints, joint_rows
+from .joints import Joints, joint_rows, limit_rows
 from .rigid import BodyState, RigidBodies, _check_loads, _check_model, _free_velocities, _integrate
 
 __all__ = ["PhysicsModel", "Rollout", "SimResult", "joint_error", "make_model", "rollout", "step", "to_mjcf"]
@@ -71,7 +80,12 @@ def make_model(
     cfm: float = 1e-10,
 ) -> PhysicsModel:
     """A :class:`PhysicsModel`; ``erp`` in ``[0, 1]``, ``cfm >= 0``; no joints and no ground by
-    default (:func:`~jaxanim.contact.make_ground` for one)."""
+    default (:func:`~jaxanim.contact.make_ground` for one).
+
+    Raises:
+        JaxanimError: ``erp`` / ``cfm`` out of range, joints naming bodies out of range, or joints
+            forming a cycle (the solver needs a forest).
+    """
     _check_model(bodies)
     if not 0 <= erp <= 1:
         raise JaxanimError(f"erp: expected a value in [0, 1], got {erp!r}")
@@ -80,10 +94,12 @@ def make_model(
     if joints is None:
         z = np.zeros((0, 3))
         joints = Joints(names=(), types=(), parent=(), child=(), anchor_parent=jnp.asarray(z), anchor_child=jnp.asarray(z),
-                        axis_parent=jnp.asarray(z), axis_child=jnp.asarray(z), rest=jnp.zeros((0, 4)))
+                        axis_parent=jnp.asarray(z), axis_child=jnp.asarray(z), rest=jnp.zeros((0, 4)), limited=(),
+                        lower=jnp.zeros((0,)), upper=jnp.zeros((0,)), swing=jnp.zeros((0,)))
     for name, idx in (("parent", joints.parent), ("child", joints.child)):
         if any(i >= bodies.num_bodies for i in idx):
             raise JaxanimError(f"joints.{name}: a body index is out of range for {bodies.num_bodies} bodies")
+    _tree(joints.parent, joints.child, bodies.num_bodies)  # raises for a cycle
     dtype = bodies.mass.dtype
     ground = make_ground("none", dtype=dtype) if ground is None else ground
     return PhysicsModel(bodies=bodies, joints=joints, erp=jnp.asarray(erp, dtype), cfm=jnp.asarray(cfm, dtype),
@@ -106,24 +122,128 @@ def _apply_joint_torques(model: PhysicsModel, torque: Array, joint_torque: Array
     return torque
 
 
-def _joint_matrix(model: PhysicsModel, state: BodyState, h):
-    """Dense joint rows ``J [R, B, 6]`` and their targets ``-(erp / h) g [R]``."""
+@functools.lru_cache(maxsize=None)
+def _tree(parent: tuple[int, ...], child: tuple[int, ...], num_bodies: int):
+    """The static elimination order of a joint forest.
+
+    Returns ``(levels, world, free, parent, child)``: ``levels[d - 1]`` the joints whose child is at
+    depth ``d >= 1`` (their parent is a body), ``world`` the joints to the world, ``free`` the bodies
+    that are no joint's child, and the joints' parent and child bodies (numpy index arrays).
+
+    Raises:
+        JaxanimError: the joints contain a cycle.
+    """
+    parent_joint = {c: j for j, c in enumerate(child)}
+    depth: dict[int, int] = {}
+    for b in range(num_bodies):
+        chain, a = [], b
+        while a not in depth:
+            chain.append(a)
+            if len(chain) > num_bodies:
+                raise JaxanimError("joints: the joints form a cycle; only trees (forests) of joints are supported")
+            j = parent_joint.get(a)
+            if j is None or parent[j] < 0:
+                depth[a] = 0
+                chain.pop()
+                break
+            a = parent[j]
+        for c in reversed(chain):
+            depth[c] = depth[parent[parent_joint[c]]] + 1
+    D = max(depth.values(), default=0)
+    levels = tuple(
+        np.asarray([j for j, c in enumerate(child) if parent[j] >= 0 and depth[c] == d], int) for d in range(1, D + 1)
+    )
+    world = np.asarray([j for j, p in enumerate(parent) if p < 0], int)
+    free = np.asarray([b for b in range(num_bodies) if b not in parent_joint], int)
+    return levels, world, free, np.asarray(parent, int), np.asarray(child, int)
+
+
+def _spd_inverse(A):
+    """Batched inverse of symmetric positive definite ``[n, k, k]`` matrices (Cholesky)."""
+    eye = jnp.broadcast_to(jnp.eye(A.shape[-1], dtype=A.dtype), A.shape)
+    return jax.vmap(lambda a, e: jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(a), True), e))(A, eye)
+
+
+def _tree_solve(tree, M, p, Jp, Jc, b, C):
+    """Velocities ``V [B, 6, m]`` of the joint-constrained system for ``m`` right-hand sides.
+
+    Solves ``M V = p + sum_j J_j' lambda_j`` with ``J_j V + diag(C_j) lambda_j = b_j`` per joint
+    exactly, in ``O(bodies)`` by eliminating bodies from the leaves to the roots (each child's
+    articulated ``6 x 6`` inertia ``M^`` and momentum ``p^`` folded into its parent through the
+    joint's ``k x k`` system ``S = J_c M^^{-1} J_c' + diag(C)``), then back-substituting from the roots
+    (``lambda = S^{-1} (b - J_c M^^{-1} p^ - J_p V_p)``, ``V_c = M^^{-1} (p^ + J_c' lambda)``): the
+    block elimination of the augmented matrix ``[[M, -J'], [J, C]]`` whose graph is a tree
+    (Baraff 1996), without fill-in.
+
+    Args:
+        tree: :func:`_tree`'s levels.
+        M: ``[B, 6, 6]`` body inertias (plus any soft world rows folded in).
+        p: ``[B, 6, m]`` momenta.
+        Jp, Jc: ``[J, k, 6]`` each joint's rows on its parent and child (``[v; omega]``).
+        b: ``[J, k, m]`` row targets; C: ``[J, k]`` their compliance (``> 0`` on rows with ``J = 0``).
+    """
+    levels, world, free, parent, child = tree
+    Mhat, phat = M, p
+    saved = []
+
+    def eliminate(js, c):
+        Jc_ = Jc[js]
+        Minv = _spd_inverse(Mhat[c])
+        X = jnp.einsum("nij,nkj->nik", Minv, Jc_)  # M^^{-1} J_c'  [n, 6, k]
+        y = jnp.einsum("nij,njm->nim", Minv, phat[c])  # M^^{-1} p^  [n, 6, m]
+        S = jnp.einsum("nki,nil->nkl", Jc_, X) + jax.vmap(jnp.diag)(C[js])
+        r = b[js] - jnp.einsum("nki,nim->nkm", Jc_, y)
+        return X, y, _spd_inverse(S), r
+
+    for js in reversed(levels):
+        c, pa = child[js], parent[js]
+        X, y, Sinv, r = eliminate(js, c)
+        G = jnp.einsum("nkl,nlj->nkj", Sinv, Jp[js])  # S^{-1} J_p  [n, k, 6]
+        Mhat = Mhat.at[pa].add(jnp.einsum("nki,nkj->nij", Jp[js], G))
+        phat = phat.at[pa].add(jnp.einsum("nki,nkm->nim", G, r))
+        saved.append((js, c, pa, X, y, Sinv, r))
+    V = jnp.zeros_like(p)
+    if free.size:
+        V = V.at[free].set(jnp.einsum("nij,njm->nim", _spd_inverse(Mhat[free]), phat[free]))
+    if world.size:
+        c = child[world]
+        X, y, Sinv, r = eliminate(world, c)
+        V = V.at[c].set(y + jnp.einsum("nik,nkl,nlm->nim", X, Sinv, r))
+    for js, c, pa, X, y, Sinv, r in reversed(saved):
+        lam = jnp.einsum("nkl,nlm->nkm", Sinv, r - jnp.einsum("nki,nim->nkm", Jp[js], V[pa]))
+        V = V.at[c].set(y + jnp.einsum("nik,nkm->nim", X, lam))
+    return V
+
+
+def _joint_blocks(model: PhysicsModel, state: BodyState, h, spd):
+    """Each joint's rows ``(J_p [J, k, 6], J_c [J, k, 6], b [J, k], C [J, k])``: the 3 anchor rows,
+    the type's angular rows (padded to the model's largest count with ``J = 0``, ``C = 1``) with
+    targets ``-(erp / h) g``, and with ``spd`` 3 stable-PD rows on the relative angular velocity.
+
+    The stable-PD law ``tau = k_p (e - h w) - k_d w`` (``w`` the new relative angular velocity, ``e``
+    the error at step ``n``) is the soft row ``w + C lambda = b`` on the impulse ``lambda = h tau``
+    with ``b = k_p e / (h k_p + k_d)`` and ``C = 1 / (h (h k_p + k_d))`` (:func:`_soft_gains`).
+    """
     joints = model.joints
-    B = model.bodies.num_bodies
     dtype = state.position.dtype
-    jj, rr = np.nonzero(joints.row_mask)
-    R = jj.size
-    if R == 0:
-        return jnp.zeros((0, B, 6), dtype), jnp.zeros((0,), dtype)
-    Jp, Jc, g = joint_rows(joints, state)
-    par = np.asarray(joints.parent)[jj]
-    chi = np.asarray(joints.child)[jj]
-    rows = np.arange(R)
-    Jd = jnp.zeros((R, B, 6), dtype).at[rows, chi].add(Jc[jj, rr])
-    has = par >= 0
-    if np.any(has):
-        Jd = Jd.at[rows[has], par[has]].add(Jp[jj[has], rr[has]])
-    return Jd, -(model.erp / h) * g[jj, rr]
+    Jp6, Jc6, g = joint_rows(joints, state)
+    mask = joints.row_mask
+    nh = int(mask.sum(axis=1).max())
+    mask = jnp.asarray(mask[:, :nh])
+    Jp, Jc = Jp6[:, :nh], Jc6[:, :nh]
+    b = jnp.where(mask, -(model.erp / h) * g[:, :nh], 0.0)
+    C = jnp.where(mask, model.cfm, 1.0)
+    if spd is not None:
+        targets, kp, kd = spd
+        e, _ = joint_errors(joints, state, rot.quat_normalize(targets))
+        bm, cm, active = _soft_gains(e, kp[:, None], kd[:, None], h)
+        eye = jnp.where(active[:, :, None], jnp.eye(3, dtype=dtype)[None], 0.0)  # [J, 3, 3]
+        zero = jnp.zeros_like(eye)
+        Jc = jnp.concatenate([Jc, jnp.concatenate([zero, eye], axis=-1)], axis=1)
+        Jp = jnp.concatenate([Jp, jnp.concatenate([zero, -eye], axis=-1)], axis=1)
+        b = jnp.concatenate([b, bm], axis=1)
+        C = jnp.concatenate([C, jnp.where(active, cm + model.cfm, 1.0)], axis=1)
+    return Jp, Jc, b, C
 
 
 def _soft_gains(e, kp, kd, h):
@@ -139,89 +259,87 @@ def _soft_gains(e, kp, kd, h):
     return b, cfm, active
 
 
-def _motor_rows(model: PhysicsModel, state: BodyState, spd, h):
-    """Stable-PD rows on every joint's relative angular velocity: ``(J [3J, B, 6], b [3J], cfm [3J])``.
-
-    The implicit law ``tau = k_p (e - h w) - k_d w`` (``w`` the new relative angular velocity,
-    ``e`` the error at step ``n``) is the soft constraint ``w + cfm lambda = b`` on the impulse
-    ``lambda = h tau`` with ``b = k_p e / (h k_p + k_d)`` and ``cfm = 1 / (h (h k_p + k_d))``.
-    """
-    targets, kp, kd = spd
-    joints = model.joints
-    Jn, B = joints.num_joints, model.bodies.num_bodies
-    dtype = state.position.dtype
-    e, _ = joint_errors(joints, state, rot.quat_normalize(targets))
-    b, cfm, active = _soft_gains(e, kp[:, None], kd[:, None], h)
-    b, cfm = b.reshape(3 * Jn), cfm.reshape(3 * Jn)
-    eye = jnp.eye(3, dtype=dtype)
-    blk = jnp.where(active[:, :, None], eye[None], 0.0)  # [J, 3, 3], zero rows where not driven
-    rows = np.arange(3 * Jn)
-    chi = np.repeat(np.asarray(joints.child), 3)
-    par = np.repeat(np.asarray(joints.parent), 3)
-    Jm = jnp.zeros((3 * Jn, B, 6), dtype).at[rows, chi, 3:].set(blk.reshape(3 * Jn, 3))
-    has = par >= 0
-    if np.any(has):
-        Jm = Jm.at[rows[has], par[has], 3:].set(-blk.reshape(3 * Jn, 3)[has])
-    return Jm, b, cfm
-
-
 def _servo_rows(model: PhysicsModel, state: BodyState, servo, h):
-    """Stable-PD rows pulling one body to a world pose (the "hand of God"): ``(J [6, B, 6], b, cfm)``,
-    the soft constraint of :func:`_motor_rows` on the body's linear and angular velocity."""
+    """The stable-PD rows pulling one body to a world pose (the "hand of God") on the body's
+    ``[v; omega]``, as the soft rows of :func:`_joint_blocks`: ``(body, b [6], cfm [6], active [6])``."""
     body, x_t, q_t, kp_l, kd_l, kp_a, kd_a = servo
-    B = model.bodies.num_bodies
-    dtype = state.position.dtype
     e_lin = x_t - state.position[body]
     e_ang = rot.quat_to_rotvec(rot.quat_canonical(rot.quat_multiply(q_t, rot.quat_conjugate(state.orientation[body]))))
     e = jnp.stack([e_lin, e_ang])  # [2, 3]
     b, cfm, active = _soft_gains(e, jnp.stack([kp_l, kp_a])[:, None], jnp.stack([kd_l, kd_a])[:, None], h)
-    rows = jnp.zeros((6, B, 6), dtype).at[np.arange(6), body, np.arange(6)].set(active.reshape(6).astype(dtype))
-    return rows, b.reshape(6), cfm.reshape(6)
+    return body, b.reshape(6), cfm.reshape(6), active.reshape(6)
 
 
 def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=None, servo=None):
-    """Velocities after the joint, stable-PD, servo and (complementarity) contact impulses."""
+    """Velocities after the joint, stable-PD, servo and (complementarity) contact impulses.
+
+    The joints (with their stable-PD rows) are solved exactly by :func:`_tree_solve`; the servo's
+    soft rows on one body are folded into that body's inertia; the contacts' effect is found by
+    the same solve for each contact row (their Delassus matrix ``A = J_u H^{-1} J_u'`` with the
+    joints eliminated exactly) and projected Gauss-Seidel on ``A``.
+    """
     dtype = v.dtype
-    Jj, bj = _joint_matrix(model, state, h)
-    cfm_extra = jnp.zeros((Jj.shape[0],), dtype)
-    if spd is not None:
-        Jm, bm, cm = _motor_rows(model, state, spd, h)
-        Jj, bj, cfm_extra = jnp.concatenate([Jj, Jm]), jnp.concatenate([bj, bm]), jnp.concatenate([cfm_extra, cm])
-    if servo is not None:
-        Js, bs, cs = _servo_rows(model, state, servo, h)
-        Jj, bj, cfm_extra = jnp.concatenate([Jj, Js]), jnp.concatenate([bj, bs]), jnp.concatenate([cfm_extra, cs])
+    B = model.bodies.num_bodies
+    Jn = model.joints.num_joints
     contact = model.ground.model == "complementarity"
-    if contact:
-        Jc, bc = contact_rows(model.ground, model.bodies, state, h)
-    else:
-        Jc, bc = jnp.zeros((0,) + Jj.shape[1:], dtype), jnp.zeros((0,), dtype)
-    Rj, Rc = Jj.shape[0], Jc.shape[0]
-    if Rj + Rc == 0:
+    if Jn == 0 and servo is None and not contact:
         return v, w
-    J = jnp.concatenate([Jj, Jc])
-    inv_m = (1.0 / model.bodies.mass)[:, None, None] * jnp.eye(3, dtype=dtype)[None]
-    W_lin = jnp.einsum("rbi,bij->rbj", J[..., :3], inv_m)
-    W_ang = jnp.einsum("rbi,bij->rbj", J[..., 3:], jnp.linalg.inv(I_n))
-    W = jnp.concatenate([W_lin, W_ang], axis=-1)  # J M^{-1}, [R, B, 6]
-    A = jnp.einsum("rbj,sbj->rs", W, J)
-    A = 0.5 * (A + A.T) + model.cfm * jnp.eye(Rj + Rc, dtype=dtype)
-    A = A + jnp.diag(jnp.concatenate([cfm_extra, jnp.zeros((Rc,), dtype)]))
+    zeros33 = jnp.zeros((B, 3, 3), dtype)
+    m_eye = model.bodies.mass[:, None, None] * jnp.eye(3, dtype=dtype)[None]
+    M = jnp.concatenate([jnp.concatenate([m_eye, zeros33], -1), jnp.concatenate([zeros33, I_n], -1)], 1)
     V = jnp.concatenate([v, w], axis=-1)
-    rhs = jnp.concatenate([bj, bc]) - jnp.einsum("rbi,bi->r", J, V)
-    if Rc == 0:
-        lam = jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(A), True), rhs)
+    p = jnp.einsum("bij,bj->bi", M, V)
+    if servo is not None:
+        body, bs, cs, active = _servo_rows(model, state, servo, h)
+        k = jnp.where(active, 1.0 / (cs + model.cfm), 0.0)
+        M = M.at[body].add(jnp.diag(k))
+        p = p.at[body].add(k * bs)
+    if Jn:
+        Jp, Jc, b, C = _joint_blocks(model, state, h, spd)
     else:
-        # Joints eliminated exactly (Schur complement of their block), contacts by PGS.
-        Acc, rc = A[Rj:, Rj:], rhs[Rj:]
-        if Rj:
-            L = jnp.linalg.cholesky(A[:Rj, :Rj])
-            X = jax.scipy.linalg.cho_solve((L, True), A[:Rj, Rj:])
-            y = jax.scipy.linalg.cho_solve((L, True), rhs[:Rj])
-            Acc = Acc - A[Rj:, :Rj] @ X
-            rc = rc - A[Rj:, :Rj] @ y
-        lam_c = projected_gauss_seidel(Acc, rc, model.ground.friction, model.ground.iterations)
-        lam = lam_c if not Rj else jnp.concatenate([y - X @ lam_c, lam_c])
-    V = V + jnp.einsum("rbj,r->bj", W, lam)
+        Jp = Jc = jnp.zeros((0, 1, 6), dtype)
+        b, C = jnp.zeros((0, 1), dtype), jnp.ones((0, 1), dtype)
+    tree = _tree(model.joints.parent, model.joints.child, B)
+    # One-sided rows: contacts (normal, t1, t2 per point) then joint limits, each row on up to two
+    # bodies (owner_a, row_a) + (owner_b, row_b).
+    owner_a, rows_a, owner_b, rows_b, target = [], [], [], [], []
+    if contact:
+        owner, rows, tc = contact_rows(model.ground, model.bodies, state, h)
+        owner_a.append(owner)
+        rows_a.append(rows)
+        owner_b.append(owner)
+        rows_b.append(jnp.zeros_like(rows))
+        target.append(tc)
+    lj, axes, phi = limit_rows(model.joints, state)
+    L = lj.size
+    if L:
+        zero3 = jnp.zeros_like(axes)
+        par = np.asarray(model.joints.parent)[lj]
+        chi = np.asarray(model.joints.child)[lj]
+        owner_a.append(jnp.asarray(chi))
+        rows_a.append(jnp.concatenate([zero3, axes], -1))
+        owner_b.append(jnp.asarray(np.where(par >= 0, par, chi)))
+        rows_b.append(jnp.concatenate([zero3, jnp.where(jnp.asarray(par >= 0)[:, None], -axes, 0.0)], -1))
+        target.append(jnp.where(phi > 0, -phi / h, (model.erp / h) * (-phi)))
+    if not target:
+        return _split(_tree_solve(tree, M, p[..., None], Jp, Jc, b[..., None], C)[..., 0])
+    owner_a, owner_b = jnp.concatenate(owner_a), jnp.concatenate(owner_b)
+    rows_a, rows_b, target = jnp.concatenate(rows_a), jnp.concatenate(rows_b), jnp.concatenate(target)
+    U = target.shape[0]
+    u = np.arange(U)
+    cols = jnp.zeros((B, 6, U), dtype).at[owner_a, :, u].add(rows_a).at[owner_b, :, u].add(rows_b)  # J_u'
+    P = jnp.concatenate([p[..., None], cols], axis=-1)
+    bb = jnp.concatenate([b[..., None], jnp.zeros(b.shape + (U,), dtype)], axis=-1)
+    Vall = _tree_solve(tree, M, P, Jp, Jc, bb, C)
+    V0, Y = Vall[..., 0], Vall[..., 1:]  # Y = H^{-1} J_u'  [B, 6, U]
+    A = jnp.einsum("uj,ujv->uv", rows_a, Y[owner_a]) + jnp.einsum("uj,ujv->uv", rows_b, Y[owner_b])
+    A = 0.5 * (A + A.T) + model.cfm * jnp.eye(U, dtype=dtype)
+    rhs = target - jnp.einsum("uj,uj->u", rows_a, V0[owner_a]) - jnp.einsum("uj,uj->u", rows_b, V0[owner_b])
+    lam = projected_gauss_seidel(A, rhs, model.ground.friction, model.ground.iterations, num_single=L)
+    return _split(V0 + jnp.einsum("bjv,v->bj", Y, lam))
+
+
+def _split(V):
     return V[:, :3], V[:, 3:]
 
 
@@ -445,7 +563,9 @@ def to_mjcf(
     from the geoms) and its shape as a geom (capsules along body ``z``, as in MuJoCo). Bodies are
     nested along the joints; a ball joint becomes ``type="ball"``, a hinge ``type="hinge"``, a
     universal joint two hinges, a fixed joint no joint (welded), and a body that is no joint's
-    child gets a ``freejoint``. Gravity and the time step are written in ``option``
+    child gets a ``freejoint``. A hinge's range becomes MuJoCo's ``range`` (MuJoCo's ball ``range``
+    bounds the total rotation angle, not a swing cone and twist, so ball limits are not exported).
+    Gravity and the time step are written in ``option``
     (``integrator="Euler"``).
 
     Contact: with ``model.ground`` of model ``"none"`` no geom collides. Otherwise the ground
@@ -528,6 +648,8 @@ def to_mjcf(
             if kind == "ball":
                 lines.append(f'{pad}  <joint name="{jname}" type="ball" pos="{anchor}"{extra}/>')
             elif kind == "hinge":
+                if joints.limited[j]:
+                    extra += f' limited="true" range="{_fmt([joints.lower[j], joints.upper[j]])}"'
                 lines.append(f'{pad}  <joint name="{jname}" type="hinge" pos="{anchor}" axis="{_fmt(ec[j])}"{extra}/>')
             elif kind == "universal":
                 p = joints.parent[j]

@@ -1,0 +1,150 @@
+"""Joint limits (jaxanim.joints.limit_rows, solved in jaxanim.physics.step): a hinge pendulum falls
+onto its range's bound and rests there, and moves exactly as the unlimited one while away from it;
+a ball-jointed pendulum swings out to its cone and stays on it; a twisted body stops at its twist
+bound; MuJoCo's hinge with the same range rests at the same angle; bad limits are errors."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxanim import JaxanimError, joints, physics, rigid
+from jaxanim import rotations as rot
+
+_R, _L = 0.05, 0.4
+_HALF = _L / 2 + _R
+_DT = 1 / 240
+
+
+def _horizontal_capsule():
+    """A capsule along +x with one end at the origin (the pivot)."""
+    bodies = rigid.make_bodies([("capsule", (_R, _L))], names=("link",))
+    q = rot.rotation_between(jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 0.0, 0.0]))
+    state = rigid.make_state(bodies, position=np.array([[_HALF, 0.0, 0.0]]), orientation=q[None])
+    return bodies, state
+
+
+@functools.lru_cache(maxsize=None)
+def _hinge(limit):
+    bodies, state = _horizontal_capsule()
+    spec = dict(name="pin", type="hinge", parent=None, child="link", anchor=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 1.0))
+    if limit is not None:
+        spec["limit"] = limit
+    return physics.make_model(bodies, joints.make_joints(bodies, state, [spec])), state
+
+
+def _hinge_angle(traj):
+    """The link's angle about +z from +x (the hinge angle, zero at assembly)."""
+    tip = traj.position[:, 0]
+    return np.arctan2(np.asarray(tip[:, 1]), np.asarray(tip[:, 0]))
+
+
+@functools.lru_cache(maxsize=None)
+def _hinge_runs():
+    lower = -0.5
+    free_model, state = _hinge(None)
+    lim_model, _ = _hinge((lower, 0.5))
+    steps = int(2.0 / _DT)
+    free = physics.rollout(free_model, state, _DT, steps)
+    lim = physics.rollout(lim_model, state, _DT, steps)
+    return lower, free, lim
+
+
+def test_hinge_rests_on_its_lower_bound():
+    lower, _, lim = _hinge_runs()
+    theta = _hinge_angle(lim.trajectory)
+    assert lim.result == physics.SimResult.successful
+    assert theta.min() > lower - 0.01, f"overshoot past the bound: {theta.min() - lower:.4f} rad"
+    assert abs(theta[-1] - lower) < 2e-3, f"final angle {theta[-1]:.5f} vs bound {lower}"
+    assert np.max(np.abs(np.asarray(lim.trajectory.angular_velocity[-60:]))) < 0.05, "not at rest on the bound"
+
+
+def test_hinge_moves_freely_away_from_its_bound():
+    lower, free, lim = _hinge_runs()
+    theta_free = _hinge_angle(free.trajectory)
+    before = theta_free > lower + 0.1  # the step that could reach the bound is excluded
+    first_far = np.argmin(before)  # the first step near the bound
+    assert first_far > 10
+    np.testing.assert_allclose(np.asarray(lim.trajectory.position[:first_far]),
+                               np.asarray(free.trajectory.position[:first_far]), atol=1e-12)
+
+
+def test_hinge_limit_matches_mujoco_rest_angle():
+    mujoco = pytest.importorskip("mujoco")
+    lower, _, lim = _hinge_runs()
+    model, state = _hinge((lower, 0.5))
+    m = mujoco.MjModel.from_xml_string(physics.to_mjcf(model, state, dt=_DT))
+    assert m.jnt_limited[0] and np.allclose(m.jnt_range[0], [lower, 0.5])
+    d = mujoco.MjData(m)
+    for _ in range(int(2.0 / _DT)):
+        mujoco.mj_step(m, d)
+    # MuJoCo's limits are soft (a small violation under load); ours are held by ERP.
+    assert abs(d.qpos[0] - lower) < 0.02
+    assert abs(_hinge_angle(lim.trajectory)[-1] - d.qpos[0]) < 0.02
+
+
+def test_ball_swing_cone_holds_the_pendulum_on_the_cone():
+    bodies, state = _horizontal_capsule()
+    cone = 0.3
+    J = joints.make_joints(bodies, state, [dict(type="ball", parent=None, child="link", anchor=(0.0, 0.0, 0.0),
+                                                axis=(1.0, 0.0, 0.0), swing=cone)])
+    model = physics.make_model(bodies, J)
+    run = physics.rollout(model, state, _DT, int(2.0 / _DT))
+    axis = np.asarray(run.trajectory.position[:, 0]) / _HALF  # the link's direction (through the pivot)
+    swing = np.arccos(np.clip(axis[:, 0], -1, 1))
+    assert swing.max() < cone + 0.01, f"left the cone by {swing.max() - cone:.4f} rad"
+    assert abs(swing[-1] - cone) < 2e-3
+    # At rest on the cone's lowest line: straight down-tilted in the x-y plane.
+    assert abs(axis[-1, 2]) < 1e-3 and axis[-1, 1] < 0
+
+
+def test_ball_twist_stops_at_its_bound():
+    bodies, state = _horizontal_capsule()
+    bodies = rigid.make_bodies([("capsule", (_R, _L))], names=("link",), gravity=(0.0, 0.0, 0.0))
+    J = joints.make_joints(bodies, state, [dict(type="ball", parent=None, child="link", anchor=(0.0, 0.0, 0.0),
+                                                axis=(1.0, 0.0, 0.0), twist=(-0.2, 0.4), swing=1.0)])
+    model = physics.make_model(bodies, J)
+    torque = jnp.array([[0.05, 0.0, 0.0]])  # about the bone axis
+    s = state
+    step = jax.jit(lambda s: physics._step(model, s, jnp.zeros((1, 3)), torque, jnp.zeros((1, 3)), jnp.asarray(_DT)))
+    twists = []
+    for _ in range(int(1.5 / _DT)):
+        s = step(s)
+        q_dev = rot.quat_multiply(s.orientation[0], rot.quat_conjugate(state.orientation[0]))
+        twists.append(2 * np.arctan2(float(q_dev[1]), float(q_dev[0])))
+    twists = np.asarray(twists)
+    assert twists.max() < 0.4 + 0.01
+    assert abs(twists[-1] - 0.4) < 2e-3
+    np.testing.assert_allclose(np.asarray(s.position[0]), [_HALF, 0.0, 0.0], atol=1e-3)  # no swing
+
+
+@pytest.mark.parametrize(
+    "spec, match",
+    [
+        (dict(type="ball", limit=(-1.0, 1.0), axis=(1.0, 0.0, 0.0)), "hinge"),
+        (dict(type="hinge", swing=0.5, axis=(0.0, 0.0, 1.0)), "ball"),
+        (dict(type="ball", swing=0.5), "axis"),
+        (dict(type="ball", swing=-0.5, axis=(1.0, 0.0, 0.0)), "swing"),
+        (dict(type="hinge", limit=(0.5, -0.5), axis=(0.0, 0.0, 1.0)), "lower < upper"),
+        (dict(type="hinge", limit=(4.0, 5.0), axis=(0.0, 0.0, 1.0)), "excludes"),
+    ],
+)
+def test_bad_limits_are_errors(spec, match):
+    bodies, state = _horizontal_capsule()
+    with pytest.raises(JaxanimError, match=match):
+        joints.make_joints(bodies, state, [dict(parent=None, child="link", anchor=(0.0, 0.0, 0.0), **spec)])
+
+
+def test_a_cycle_of_joints_is_an_error():
+    bodies = rigid.make_bodies([("sphere", (0.1,)), ("sphere", (0.1,))], names=("a", "b"))
+    state = rigid.make_state(bodies, position=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]))
+    J = joints.make_joints(bodies, state, [
+        dict(type="ball", parent="a", child="b", anchor=(0.5, 0.0, 0.0)),
+        dict(type="ball", parent="b", child="a", anchor=(0.5, 0.0, 0.0)),
+    ])
+    with pytest.raises(JaxanimError, match="cycle"):
+        physics.make_model(bodies, J)
