@@ -350,7 +350,7 @@ def tracking_controller(
     )
 
     def controller(state, step, a):
-        f = jnp.floor(step * dt * fps).astype(jnp.int32) % F
+        f = jnp.floor(step * dt * fps + 1e-6).astype(jnp.int32) % F  # + 1e-6: a frame boundary hit exactly
         servo = (root, root_x[f], root_q[f], a["root_kp"], a["root_kd"], a["root_angular_kp"], a["root_angular_kd"])
         return dict(spd=(targets_all[f], a["kp"], a["kd"]), servo=servo)
 

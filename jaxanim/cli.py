@@ -1,4 +1,4 @@
-"""The ``jaxanim`` command line: ``info``, ``fk``, ``plot`` and ``demo`` on BVH files.
+"""The ``jaxanim`` command line: ``info``, ``fk``, ``plot``, ``ik``, ``simulate`` and ``demo`` on BVH files.
 
 Every command takes an optional BVH file and uses the shipped default clip (a walk, see
 :mod:`jaxanim.default_clip`) without one. Computation is float64 unless ``--float32`` is given:
@@ -12,6 +12,15 @@ written) prints ``error: <path>:<line>: <message>`` (or ``error: <message>``) on
 with status 2, never with a traceback. Progress lines go to stderr, results to stdout; ``--quiet``
 keeps only the errors and the output a command exists for (the ``info`` report).
 
+``simulate`` builds the physics character of the clip (:func:`jaxanim.character.build_character`)
+and tracks the clip with stable PD plus the root servo (:func:`jaxanim.character.tracking_controller`)
+in one compiled :func:`jaxanim.physics.rollout`. The step is ``frame_time / k`` with ``k =
+max(1, round(frame_time / dt))``, so that every ``k``-th state falls exactly on a frame of the clip
+(``--dt`` is adjusted to that when it does not divide the frame period, and a progress line says
+so); those states are written, as BVH on the same skeleton at the clip's frame time, with the
+start pose as frame 0. A rollout that ends ``nonfinite`` or ``exploded`` still writes its frames
+(held at the last good state) and exits with status 1.
+
 ``demo`` runs a list of steps (:data:`DEMO_STEPS`); later features append theirs to it.
 """
 
@@ -20,6 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import math
 import os
 import pathlib
 import statistics
@@ -32,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import BVHParseError, JaxanimError
-from .bvh import read_bvh
+from .bvh import read_bvh, write_bvh
 from .default_clip import default_clip_path
 from .fk import FKResult, forward_kinematics
 from .skeleton import POSITION_CHANNELS, Motion, Skeleton
@@ -69,6 +79,10 @@ class _UI:
 
 def _ms(seconds: float) -> str:
     return f"{seconds * 1e3:.1f} ms" if seconds >= 1e-3 else f"{seconds * 1e3:.3f} ms"
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.2f} s" if seconds >= 1.0 else _ms(seconds)
 
 
 def _num(x: float) -> str:
@@ -299,6 +313,215 @@ def _cmd_plot(args: argparse.Namespace, ui: _UI) -> int:
     return 0
 
 
+# --- simulate: track the clip with the physics character ----------------------------------------------
+_SIM_CONTROLLERS = ("spd",)
+_SIM_CONTACTS = ("complementarity", "penalty", "none")
+
+
+@dataclasses.dataclass
+class _SimPlan:
+    """How the rollout maps onto the clip's frames."""
+
+    frames: int  # frames written; frame 0 is the start pose, frame i is at i * frame_time
+    k: int  # physics steps per frame
+    dt: float  # the step used: frame_time / k
+    steps: int  # (frames - 1) * k
+
+
+def _sim_plan(seconds: float, dt: float, frame_time: float) -> _SimPlan:
+    """Frames ``round(seconds * fps)`` and the step ``frame_time / k``, ``k = max(1, round(frame_time / dt))``."""
+    fps = 1.0 / frame_time
+    frames = int(round(seconds * fps))
+    if frames < 2:
+        raise JaxanimError(f"--seconds {seconds:g} is shorter than two frames of the clip at {_num(fps)} fps "
+                           f"(use at least {_num(1.5 * frame_time)} s)")
+    k = max(1, int(round(frame_time / dt)))
+    return _SimPlan(frames=frames, k=k, dt=frame_time / k, steps=(frames - 1) * k)
+
+
+def _looped_motion(motion: Motion, frames: int) -> Motion:
+    """``frames`` frames of the clip, looped: loop ``n`` repeats the clip with the root moved on
+    horizontally (X and Z, BVH's Y is up) by ``n`` times the clip's displacement, last frame minus first
+    plus one more frame's step, so a walk carries on instead of jumping back to its start."""
+    F = motion.num_frames
+    idx = np.arange(frames)
+    loop = (idx // F).astype(np.float64)
+    rotations = motion.rotations[idx % F]
+    translations = motion.translations[idx % F]
+    if frames > F and F >= 2:
+        root = np.asarray(motion.translations[:, 0], np.float64)
+        step = (root[-1] - root[0]) + (root[-1] - root[-2])
+        step[1] = 0.0
+        shift = np.zeros((frames, motion.num_joints, 3))
+        shift[:, 0] = loop[:, None] * step[None, :]
+        translations = translations + jnp.asarray(shift, translations.dtype)
+    return Motion(rotations, translations, motion.frame_time)
+
+
+@dataclasses.dataclass
+class _SimRun:
+    """What :func:`_simulate` returns: the written frames, their diagnostics, the status and timings."""
+
+    motion: Motion  # the simulated clip (file units, the clip's frame time)
+    com_height: np.ndarray  # [frames] metres
+    error: np.ndarray  # [frames] mean joint rotation error, radians
+    ok: bool
+    status: str  # "successful", "nonfinite" or "exploded"
+    message: str
+    steps_done: int
+    setup_seconds: float  # build_character + tracking_controller (op by op: the first call compiles each op)
+    compile_seconds: float
+    run_seconds: float
+
+
+def _sim_status(result) -> tuple[str, str]:
+    from .physics import SimResult
+
+    for name in ("successful", "nonfinite", "exploded"):
+        if bool(result == getattr(SimResult, name)):
+            return name, SimResult[result]
+    return "unknown", ""
+
+
+def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) -> _SimRun:
+    """Build the character, compile the rollout and the pose / CoM / error maps, run them."""
+    from . import character
+    from .contact import make_ground
+    from .control import joint_errors
+    from .physics import rollout
+
+    reference = _looped_motion(clip.motion, plan.frames)
+    ui.progress(f"building the character ({args.contact} contact) and the controller")
+    t0 = time.perf_counter()
+    char, state0 = character.build_character(clip.skeleton, reference.rotations[0], reference.translations[0],
+                                             ground=make_ground(args.contact, dtype=jnp.float64))
+    ctrl, gains = character.tracking_controller(char, reference, plan.dt, kp=args.kp, kd=args.kd,
+                                                root_force=not args.no_root_force)
+    jax.block_until_ready(gains)
+    setup_seconds = time.perf_counter() - t0
+    mass = char.model.bodies.mass
+
+    def simulate(state0, gains, reference):
+        run = rollout(char.model, state0, plan.dt, plan.steps, record_every=plan.k, controller=ctrl,
+                      controller_args=gains)
+        traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), state0, run.trajectory)
+        q, t = jax.vmap(lambda s, r: character.character_pose(char, s, reference=r))(traj, reference.rotations)
+        targets = jax.vmap(lambda r, tr: character.spd_targets(char, r, tr))(
+            reference.rotations, reference.translations)
+        err = jax.vmap(lambda s, tg: jnp.mean(jnp.linalg.norm(joint_errors(char.model.joints, s, tg)[0], axis=-1)))(
+            traj, targets)
+        com_y = jnp.einsum("b,fb->f", mass, traj.position[:, :, 1]) / jnp.sum(mass)
+        return q, t, com_y, err, run.result, run.num_steps
+
+    call_args = (state0, gains, reference)
+    ui.progress(f"compiling the rollout: {plan.steps} steps of {_ms(plan.dt)}, recording every {plan.k}")
+    t0 = time.perf_counter()
+    compiled = jax.jit(simulate).lower(*call_args).compile()
+    compile_seconds = time.perf_counter() - t0
+    ui.progress(f"simulating {_num(plan.steps * plan.dt)} s")
+    t0 = time.perf_counter()
+    q, t, com_y, err, result, steps_done = jax.block_until_ready(compiled(*call_args))
+    run_seconds = time.perf_counter() - t0
+    status, message = _sim_status(result)
+    return _SimRun(
+        motion=Motion(q, t, clip.motion.frame_time), com_height=np.asarray(com_y), error=np.asarray(err),
+        ok=status == "successful", status=status, message=message, steps_done=int(steps_done),
+        setup_seconds=setup_seconds, compile_seconds=compile_seconds, run_seconds=run_seconds,
+    )
+
+
+def _plot_simulation(path, run: _SimRun, frame_time: float, title: str) -> None:
+    """Two panels over time: the centre of mass height (m) and the mean joint error (degrees)."""
+    from .plot import _import_matplotlib
+
+    _import_matplotlib(pyplot=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8.0, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_com, ax_err = fig.subplots(2, 1, sharex=True)
+    t = np.arange(run.com_height.shape[0]) * frame_time
+    ax_com.plot(t, run.com_height, color="tab:blue")
+    ax_com.set_ylabel("CoM height (m)")
+    ax_com.set_title(title)
+    ax_com.grid(True, alpha=0.3)
+    ax_err.plot(t, np.degrees(run.error), color="tab:red")
+    ax_err.set_ylabel("mean joint error (deg)")
+    ax_err.set_xlabel("time (s)")
+    ax_err.grid(True, alpha=0.3)
+    fig.savefig(path, dpi=100, format="png")
+
+
+def _check_number(flag: str, value: float, *, zero_ok: bool = False) -> None:
+    """A finite number, positive (or non-negative with ``zero_ok``)."""
+    if not (math.isfinite(value) and (value >= 0 if zero_ok else value > 0)):
+        raise JaxanimError(f"{flag}: expected a {'non-negative' if zero_ok else 'positive'} finite number, "
+                           f"got {value:g}")
+
+
+def _check_writable(flag: str, path: str) -> None:
+    parent = pathlib.Path(path).resolve().parent
+    if not parent.is_dir():
+        raise JaxanimError(f"{flag} {path}: cannot write it: the directory {parent} does not exist")
+
+
+def _cmd_simulate(args: argparse.Namespace, ui: _UI) -> int:
+    if args.float32:
+        raise JaxanimError("simulate: --float32 is not supported (the physics runs in float64)")
+    if args.seconds is not None:
+        _check_number("--seconds", args.seconds)
+    _check_number("--dt", args.dt)
+    _check_number("--kp", args.kp, zero_ok=True)
+    _check_number("--kd", args.kd, zero_ok=True)
+    clip = _load(args.file, ui, args.dtype)
+    if clip.motion.num_frames == 0:
+        raise JaxanimError(f"{clip.label} has no frames: nothing to track")
+    out = args.out or f"{clip.stem}.sim.bvh"
+    plot = None if args.plot is None else (args.plot or str(pathlib.Path(out).with_suffix(".png")))
+    _check_writable("--out", out)
+    if plot is not None:
+        _check_writable("--plot", plot)
+        from .plot import _import_matplotlib
+
+        _import_matplotlib(pyplot=False)  # fail before simulating when matplotlib is missing
+    frame_time = float(clip.motion.frame_time)
+    seconds = clip.motion.num_frames * frame_time if args.seconds is None else args.seconds
+    plan = _sim_plan(seconds, args.dt, frame_time)
+    if abs(plan.dt - args.dt) > 1e-3 * args.dt:  # not for the rounding of the file's frame time
+        ui.progress(f"--dt {args.dt:g} does not divide the frame time {_num(frame_time)} s: using "
+                    f"dt = frame time / {plan.k} = {_num(plan.dt)} s")
+    if plan.frames > clip.motion.num_frames:
+        ui.progress(f"looping the clip: {plan.frames} frames from {clip.motion.num_frames}")
+    run = _simulate(clip, args, plan, ui)
+    ui.progress(f"writing {out}")
+    write_bvh(out, clip.skeleton, run.motion)
+    setup = (f"{args.controller} kp {args.kp:g} kd {args.kd:g}, {'no ' if args.no_root_force else ''}root force, "
+             f"{args.contact} contact")
+    if plot is not None:
+        ui.progress(f"drawing {plot}")
+        _plot_simulation(plot, run, frame_time, f"{clip.path.name}: {setup}")
+    err = run.error[1:]  # frame 0 is the start pose, the clip's first frame
+    com = run.com_height
+    ui.result("\n".join([
+        f"wrote {out}: {plan.frames} frames at {_num(1.0 / frame_time)} fps "
+        f"({_num(plan.frames * frame_time)} s, frames x frame time), {clip.skeleton.num_joints} joints"
+        + (f"; plot {plot}" if plot is not None else ""),
+        f"rollout {run.status}: {run.steps_done}/{plan.steps} steps of {_ms(plan.dt)} ({plan.k} per frame), {setup}",
+        f"tracking error (joint rotation vs the clip) mean {float(err.mean()):.4f} rad "
+        f"({np.degrees(float(err.mean())):.2f}°), max {float(err.max()):.4f} rad; CoM height {com[0]:.3f} m at the "
+        f"start, {com[-1]:.3f} m at the end, min {com.min():.3f} m",
+        f"parse {_ms(clip.parse_seconds)}, character and controller {_duration(run.setup_seconds)}, "
+        f"rollout compile {_duration(run.compile_seconds)}, run {_duration(run.run_seconds)} "
+        f"({run.run_seconds / plan.steps * 1e3:.2f} ms per step)",
+    ]))
+    if not run.ok:
+        ui.error(f"the rollout stopped after {run.steps_done} of {plan.steps} steps ({run.status}): {run.message} "
+                 f"The frames after that hold the last good state.")
+        return 1
+    return 0
+
+
 # --- demo: a list of steps ----------------------------------------------------------------------------
 @dataclasses.dataclass
 class DemoState:
@@ -392,6 +615,8 @@ examples:
   jaxanim info walk.bvh                joints, End Sites, frames, bounding box
   jaxanim fk walk.bvh --out walk.npz   global transforms of every frame
   jaxanim plot walk.bvh --frame 10 --out pose.png
+  jaxanim simulate walk.bvh --seconds 5 --out sim.bvh --plot
+                                       track the clip with stable PD (physics)
   jaxanim demo --out-dir results       run the whole pipeline with timings"""
 
 
@@ -449,6 +674,35 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", "-o", metavar="OUT.bvh", help="output file (default: <name>.ik.bvh here)")
     p.set_defaults(func=_cmd_ik)
 
+    p = sub.add_parser("simulate", parents=[common], help="track a clip with a simulated character (BVH out)",
+                       description="Build the physics character of the clip (one rigid body per bone group, ball "
+                                   "joints, 70 kg, ground contact) and track the clip (looping it, with the root moved "
+                                   "on, if it is shorter than --seconds) with stable PD on every joint plus a root "
+                                   "force and torque servo unless --no-root-force. The step is the frame time / k, "
+                                   "k = round(frame time / --dt), so every k-th state is a frame of the clip (--dt is "
+                                   "adjusted to that); the simulated motion is written as BVH on the same skeleton at "
+                                   "the clip's frame rate, round(seconds x fps) frames starting at the clip's first "
+                                   "pose. Prints the rollout status (successful, nonfinite or exploded: exit status "
+                                   "1), the mean joint error against the clip and the compile and run times.")
+    p.add_argument("file", nargs="?", metavar="FILE.bvh", help=file_help)
+    p.add_argument("--controller", choices=_SIM_CONTROLLERS, default="spd",
+                   help="the tracking controller: spd (stable PD, the default)")
+    p.add_argument("--seconds", "-s", type=float, default=None, metavar="S",
+                   help="simulated duration (default: the clip's duration)")
+    p.add_argument("--dt", type=float, default=1 / 120, metavar="H",
+                   help="physics step in seconds (default 1/120; made to divide the frame time)")
+    p.add_argument("--kp", type=float, default=500.0, help="joint stiffness, N m / rad (default 500)")
+    p.add_argument("--kd", type=float, default=50.0, help="joint damping, N m s / rad (default 50)")
+    p.add_argument("--no-root-force", action="store_true",
+                   help="no root servo (no \"hand of God\"): the character must balance on the joint torques alone")
+    p.add_argument("--contact", choices=_SIM_CONTACTS, default="complementarity",
+                   help="ground contact model (default: complementarity; penalty needs a small --dt)")
+    p.add_argument("--out", "-o", metavar="OUT.bvh", help="output file (default: <name>.sim.bvh here)")
+    p.add_argument("--plot", nargs="?", const="", default=None, metavar="OUT.png",
+                   help="also draw the CoM height and the mean joint error over time "
+                        "(default file: OUT with .png; needs matplotlib)")
+    p.set_defaults(func=_cmd_simulate)
+
     p = sub.add_parser("demo", parents=[common], help="run the pipeline on the shipped clip, with timings",
                        description="Load the shipped walk clip, run forward kinematics of all frames in one batched "
                                    "call, write demo_fk.npz and demo_pose.png, and print a summary with timings "
@@ -466,7 +720,8 @@ def _version() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the ``jaxanim`` command line; returns the exit status (0 ok, 2 bad input).
+    """Run the ``jaxanim`` command line; returns the exit status (0 ok, 2 bad input, 1 a simulation that
+    did not finish: ``simulate``'s rollout ended ``nonfinite`` or ``exploded``).
 
     Args:
         argv: the arguments after the program name (default ``sys.argv[1:]``).
