@@ -3,8 +3,8 @@
 Each benchmark is a function ``run(config: BenchConfig) -> list[Table]`` in a module of this package;
 :data:`REGISTRY` maps the names accepted on the command line to those functions (imported lazily, so
 one benchmark's missing dependency never stops another): ``fk``, ``jacobian`` (:mod:`benchmarks.fk`),
-``ik`` (:mod:`benchmarks.ik`) and ``oc`` (:mod:`benchmarks.oc`). To add a benchmark (``physics``),
-write ``benchmarks/<name>.py`` with such a function and add one :class:`BenchmarkSpec` line to
+``ik`` (:mod:`benchmarks.ik`), ``oc`` (:mod:`benchmarks.oc`) and ``physics`` (:mod:`benchmarks.physics`). To add a
+benchmark, write ``benchmarks/<name>.py`` with such a function and add one :class:`BenchmarkSpec` line to
 :data:`REGISTRY`. Peers live in ``benchmarks/peers/`` and raise
 :class:`benchmarks.peers.PeerUnavailable` when they cannot be imported; the benchmark then reports
 them as ``skipped: <reason>`` rows.
@@ -125,6 +125,10 @@ REGISTRY: dict[str, BenchmarkSpec] = {
         BenchmarkSpec(
             "oc", "benchmarks.oc:run_oc",
             "optimal control: iLQR/DDP/LQR/DARE vs Crocoddyl and scipy (unicycle, LQ, DARE, swing-ups)",
+        ),
+        BenchmarkSpec(
+            "physics", "benchmarks.physics:run_physics",
+            "~20-body character standing under PD control: jaxanim (penalty, complementarity) vs MuJoCo C and MJX",
         ),
     )
 }

@@ -1,0 +1,178 @@
+"""MuJoCo (C) and MJX as the peers of the ``physics`` benchmark, on jaxanim's exported MJCF.
+
+The model is :func:`jaxanim.character.export_mjcf` (or :func:`jaxanim.physics.to_mjcf`): one
+MuJoCo body per jaxanim body, its frame at the body's centre of mass (``inertial pos="0 0 0"``), so
+``xpos`` of a body equals jaxanim's ``BodyState.position``; a ``freejoint`` on the root, whose
+``qvel[0:3]`` is the root's centre-of-mass velocity in world axes (the same as jaxanim's
+``linear_velocity``). Three ways to step it:
+
+* :meth:`MujocoSim.step_loop`: a Python loop of ``mujoco.mj_step`` over ``B`` ``MjData`` (one per
+  character), each reset to its initial state first, so every timed call does the same work;
+* :meth:`MujocoSim.rollout`: ``mujoco.rollout.rollout`` (C++ thread pool, ``nthread`` ``MjData``,
+  ``persistent_pool=True``: without it every call builds a pool, ~1 ms), no Python per step;
+* :func:`mjx_rollout`: MJX, ``jax.jit(jax.vmap(scan of mjx.step))``.
+
+Every function imports MuJoCo through :func:`load_mujoco` / :func:`load_mjx`, which raise
+:class:`benchmarks.peers.PeerUnavailable` when they are missing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from . import PeerUnavailable, require
+
+__all__ = ["MujocoSim", "load_mjx", "load_mujoco", "mjx_rollout", "mjx_version"]
+
+_HINT = "pip install mujoco"
+
+
+def load_mujoco():
+    """The ``mujoco`` module, or :class:`PeerUnavailable`."""
+    return require("mujoco", _HINT)
+
+
+def load_mjx():
+    """``mujoco.mjx``, or :class:`PeerUnavailable` (its import prints warnings about the optional
+    ``warp`` backend on machines without it; they are swallowed here)."""
+    load_mujoco()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        try:
+            from mujoco import mjx
+        except ImportError as exc:
+            raise PeerUnavailable(f"cannot import mujoco.mjx: {exc} (pip install mujoco-mjx)") from exc
+    return mjx
+
+
+def mjx_version() -> str:
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("mujoco-mjx")
+    except importlib.metadata.PackageNotFoundError:
+        return "not installed"
+
+
+class MujocoSim:
+    """A MuJoCo model of a jaxanim model and ``B`` characters' initial states.
+
+    Args:
+        xml: the MJCF text.
+        body_names: jaxanim's body names, in jaxanim's order (positions are returned in it).
+        root: the jaxanim index of the free body.
+        root_velocities: ``[B, 3]`` initial root linear velocities (world, m/s), one per character;
+            everything else starts at the assembly pose, at rest.
+    """
+
+    def __init__(self, xml: str, body_names: Sequence[str], root: int, root_velocities: np.ndarray):
+        mujoco = load_mujoco()
+        self.mujoco = mujoco
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, n) for n in body_names])
+        if np.any(self.ids < 0):
+            raise PeerUnavailable("the MJCF lacks some of jaxanim's bodies")
+        free = [j for j in range(self.model.njnt) if self.model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+        if len(free) != 1 or self.model.jnt_bodyid[free[0]] != self.ids[root]:
+            raise PeerUnavailable("expected one free joint, on jaxanim's root body")
+        self.root_dof = int(self.model.jnt_dofadr[free[0]])
+        v = np.asarray(root_velocities, float).reshape(-1, 3)
+        self.batch = v.shape[0]
+        d = mujoco.MjData(self.model)
+        self.qpos0 = d.qpos.copy()
+        self.qvel0 = np.zeros((self.batch, self.model.nv))
+        self.qvel0[:, self.root_dof:self.root_dof + 3] = v
+        self.datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
+        self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self.initial_states = np.stack([self._state_of(i) for i in range(self.batch)])
+
+    def reset(self, i: int, data=None):
+        """Put character ``i``'s initial state into ``data`` (default its own ``MjData``)."""
+        d = self.datas[i] if data is None else data
+        self.mujoco.mj_resetData(self.model, d)
+        d.qpos[:] = self.qpos0
+        d.qvel[:] = self.qvel0[i]
+        return d
+
+    def _state_of(self, i: int) -> np.ndarray:
+        d = self.reset(i, self.mujoco.MjData(self.model))
+        out = np.empty(self.mujoco.mj_stateSize(self.model, self._spec))
+        self.mujoco.mj_getState(self.model, d, out, self._spec)
+        return out
+
+    def step_loop(self, nstep: int, count: int | None = None) -> None:
+        """Reset the first ``count`` characters (default all) and ``mj_step`` each ``nstep`` times."""
+        step, m = self.mujoco.mj_step, self.model
+        for i in range(self.batch if count is None else count):
+            d = self.reset(i)
+            for _ in range(nstep):
+                step(m, d)
+
+    def rollout(self, nstep: int, pool: list, count: int | None = None) -> np.ndarray:
+        """``mujoco.rollout.rollout`` of the first ``count`` characters (default all) from their start
+        states on the threads of ``pool`` (one ``MjData`` per thread); ``[count, nstep, nstate]``."""
+        from mujoco import rollout as mj_rollout
+
+        init = self.initial_states[: self.batch if count is None else count]
+        state, _ = mj_rollout.rollout(self.model, pool, init, nstep=nstep, persistent_pool=True)
+        return state
+
+    def positions_from_state(self, state: np.ndarray) -> np.ndarray:
+        """Body positions (jaxanim order, ``[nb, 3]``) of a full-physics state vector."""
+        d = self.mujoco.MjData(self.model)
+        self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
+        self.mujoco.mj_kinematics(self.model, d)
+        return d.xpos[self.ids].copy()
+
+    def positions(self, i: int = 0) -> np.ndarray:
+        """Character ``i``'s current body positions (jaxanim order, ``[nb, 3]``)."""
+        d = self.datas[i]
+        self.mujoco.mj_kinematics(self.model, d)
+        return d.xpos[self.ids].copy()
+
+    def positions_from_qpos(self, qpos: np.ndarray) -> np.ndarray:
+        """Body positions (jaxanim order) at ``qpos`` (e.g. MJX's result)."""
+        d = self.mujoco.MjData(self.model)
+        d.qpos[:] = qpos
+        self.mujoco.mj_kinematics(self.model, d)
+        return d.xpos[self.ids].copy()
+
+
+def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple]:
+    """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan``
+    per character, vmapped over the first ``batch`` characters' initial states.
+
+    The initial ``mjx.Data`` is cast to the dtypes ``mjx.step`` returns (under x64, ``put_data``
+    makes int32 contact indices that ``step`` returns as int64, which ``lax.scan`` refuses).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    mjx = load_mjx()
+    mujoco = sim.mujoco
+    mx = mjx.put_model(sim.model)
+    datas = []
+    for i in range(batch):
+        d = sim.reset(i, mujoco.MjData(sim.model))
+        mujoco.mj_forward(sim.model, d)
+        datas.append(mjx.put_data(sim.model, d))
+    dx = jax.tree.map(lambda *a: jnp.stack(a), *datas)
+    shape = jax.eval_shape(mjx.step, mx, datas[0])
+    dx = jax.tree.map(lambda a, s: jnp.asarray(a, s.dtype), dx, shape)
+
+    def one(d):
+        return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), d, None, length=nstep)[0].qpos
+
+    return jax.jit(jax.vmap(one)), (dx,)
+
+
+def cpu_threads() -> int:
+    """Cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1

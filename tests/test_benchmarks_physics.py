@@ -1,0 +1,83 @@
+"""The ``physics`` benchmark: a reduced in-process run (tiny batch, few steps).
+
+Only one jaxanim contact model and a two-step call run here (each jaxanim row costs a compilation
+of several seconds); timings are not checked, the rows, accuracy columns and skipped peers are.
+MJX is reported as skipped (its compilation takes about a minute on CPU).
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+import pytest
+
+from benchmarks import REGISTRY, BenchConfig, default_data_dir
+from benchmarks.peers import PeerUnavailable
+from benchmarks.physics import CLIP, PhysicsSizes, run_physics
+from benchmarks.report import render_table
+
+_TINY = PhysicsSizes(batches=(2,), steps_per_call=2, mjx_steps=1, contact_models=("complementarity",),
+                     stand_seconds=0.0, pendulum_seconds=0.05, pendulum_dts=(1 / 600,))
+
+
+def _config(**kw) -> BenchConfig:
+    return BenchConfig.make_quick(verbose=False, batches=(2,), repeats=1, warmup=0, max_row_s=0.5, loop_cap=2, **kw)
+
+
+def _rows(tables, name):
+    (table,) = [t for t in tables if t.name == name]
+    return table, {(r.implementation, r.batch): r for r in table.rows}
+
+
+def test_registered():
+    assert REGISTRY["physics"].target == "benchmarks.physics:run_physics"
+    assert REGISTRY["physics"].load() is run_physics
+
+
+def test_reduced_run(monkeypatch):
+    """MuJoCo C and jaxanim rows run and agree roughly; a missing MJX becomes a skipped row."""
+    pytest.importorskip("mujoco")
+    if not (default_data_dir() / CLIP).is_file():
+        pytest.skip(f"shared data {default_data_dir() / CLIP} not found")
+    from benchmarks.peers import mujoco_physics
+
+    def no_mjx():
+        raise PeerUnavailable("cannot import mujoco.mjx: blocked by the test")
+
+    monkeypatch.setattr(mujoco_physics, "load_mjx", no_mjx)
+    tables = run_physics(_config(), _TINY, tables=("throughput", "pendulum"))
+    assert [t.name for t in tables] == ["physics", "physics-pendulum"]
+    text = "\n".join(render_table(t) for t in tables)
+    assert "failed:" not in text, text
+
+    table, rows = _rows(tables, "physics")
+    assert rows[("MuJoCo C mj_step (Python loop)", 2)].accuracy == "reference"
+    assert rows[("MuJoCo C mj_step (Python loop)", 2)].chars_per_call == 2 * 2  # characters x steps
+    assert rows[("MuJoCo C rollout.rollout", 2)].accuracy < 1e-12  # the same C code
+    own = rows[("jaxanim rollout (complementarity)", 2)]
+    assert own.success == 1.0 and own.compile_s > 0 and own.time_median_s > 0
+    assert own.accuracy < 1e-2, own.accuracy  # two steps from rest: m
+    assert rows[("MJX jit(vmap(scan(mjx.step)))", None)].skipped.startswith("cannot import mujoco.mjx")
+    assert any(n.startswith("Target: rollout compile") for n in table.notes)
+    assert any("mujoco" in n for n in table.notes)
+
+    _, pend = _rows(tables, "physics-pendulum")
+    mj, ja = pend[("MuJoCo C mj_step (dt 1/600)", 1)], pend[("jaxanim rollout (dt 1/600)", 1)]
+    assert mj.accuracy < 1e-3 and ja.accuracy < 1e-3 and ja.success == 1.0
+    assert "joint separation" in ja.note
+
+
+def test_missing_data_is_skipped(tmp_path: pathlib.Path):
+    tables = run_physics(_config(data_dir=tmp_path), _TINY, tables=("throughput", "standing"))
+    assert [t.name for t in tables] == ["physics", "physics-standing"]
+    assert all(t.skipped and "not found" in t.skipped for t in tables)
+    assert "**skipped:**" in render_table(tables[0])
+
+
+def test_root_velocities_are_prefixes():
+    from benchmarks.physics import root_velocities
+
+    v = root_velocities(64)
+    np.testing.assert_array_equal(root_velocities(2), v[:2])
+    assert np.all(v[:, 1] == 0) and np.all(np.abs(v) <= 0.05)
