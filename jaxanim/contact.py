@@ -207,7 +207,7 @@ def projected_gauss_seidel(S: Array, rhs: Array, mu: Array, iterations: int, num
     diag = jnp.diagonal(S)
 
     def point(k, lam):
-        w = S3[k] @ lam - rhs3[k]  # [3]
+        w = jnp.sum(S3[k] * lam[None, :], axis=-1) - rhs3[k]  # [3]; a fused product, also under vmap
         d = blocks[k]
         old = jax.lax.dynamic_slice(lam, (3 * k,), (3,))
         ln = jnp.maximum(old[0] - w[0] / d[0, 0], 0.0)
@@ -220,7 +220,7 @@ def projected_gauss_seidel(S: Array, rhs: Array, mu: Array, iterations: int, num
         return jax.lax.dynamic_update_slice(lam, jnp.stack([ln, l1 * scale, l2 * scale]), (3 * k,))
 
     def single(i, lam):
-        return lam.at[i].set(jnp.maximum(lam[i] - (S[i] @ lam - rhs[i]) / diag[i], 0.0))
+        return lam.at[i].set(jnp.maximum(lam[i] - (jnp.sum(S[i] * lam) - rhs[i]) / diag[i], 0.0))
 
     def sweep(_, lam):
         if K:

@@ -48,7 +48,7 @@ from ._errors import JaxanimError, check_shape
 from .contact import Ground, contact_rows, make_ground, penalty_loads, projected_gauss_seidel
 from .control import joint_errors
 from .joints import Joints, joint_rows, limit_rows
-from .rigid import BodyState, RigidBodies, _check_loads, _check_model, _free_velocities, _integrate
+from .rigid import BodyState, RigidBodies, _check_loads, _check_model, _free_velocities, _bmm, _integrate, _spd_inverse
 
 __all__ = ["PhysicsModel", "Rollout", "SimResult", "joint_error", "make_model", "rollout", "step", "to_mjcf"]
 
@@ -158,12 +158,6 @@ def _tree(parent: tuple[int, ...], child: tuple[int, ...], num_bodies: int):
     return levels, world, free, np.asarray(parent, int), np.asarray(child, int)
 
 
-def _spd_inverse(A):
-    """Batched inverse of symmetric positive definite ``[n, k, k]`` matrices (Cholesky)."""
-    eye = jnp.broadcast_to(jnp.eye(A.shape[-1], dtype=A.dtype), A.shape)
-    return jax.vmap(lambda a, e: jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(a), True), e))(A, eye)
-
-
 def _tree_solve(tree, M, p, Jp, Jc, b, C):
     """Velocities ``V [B, 6, m]`` of the joint-constrained system for ``m`` right-hand sides.
 
@@ -189,29 +183,29 @@ def _tree_solve(tree, M, p, Jp, Jc, b, C):
     def eliminate(js, c):
         Jc_ = Jc[js]
         Minv = _spd_inverse(Mhat[c])
-        X = jnp.einsum("nij,nkj->nik", Minv, Jc_)  # M^^{-1} J_c'  [n, 6, k]
-        y = jnp.einsum("nij,njm->nim", Minv, phat[c])  # M^^{-1} p^  [n, 6, m]
-        S = jnp.einsum("nki,nil->nkl", Jc_, X) + jax.vmap(jnp.diag)(C[js])
-        r = b[js] - jnp.einsum("nki,nim->nkm", Jc_, y)
+        X = _bmm(Minv, jnp.swapaxes(Jc_, -1, -2))  # M^^{-1} J_c'  [n, 6, k]
+        y = _bmm(Minv, phat[c])  # M^^{-1} p^  [n, 6, m]
+        S = _bmm(Jc_, X) + jax.vmap(jnp.diag)(C[js])
+        r = b[js] - _bmm(Jc_, y)
         return X, y, _spd_inverse(S), r
 
     for js in reversed(levels):
         c, pa = child[js], parent[js]
         X, y, Sinv, r = eliminate(js, c)
-        G = jnp.einsum("nkl,nlj->nkj", Sinv, Jp[js])  # S^{-1} J_p  [n, k, 6]
-        Mhat = Mhat.at[pa].add(jnp.einsum("nki,nkj->nij", Jp[js], G))
-        phat = phat.at[pa].add(jnp.einsum("nki,nkm->nim", G, r))
+        G = _bmm(Sinv, Jp[js])  # S^{-1} J_p  [n, k, 6]
+        Mhat = Mhat.at[pa].add(_bmm(jnp.swapaxes(Jp[js], -1, -2), G))
+        phat = phat.at[pa].add(_bmm(jnp.swapaxes(G, -1, -2), r))
         saved.append((js, c, pa, X, y, Sinv, r))
     V = jnp.zeros_like(p)
     if free.size:
-        V = V.at[free].set(jnp.einsum("nij,njm->nim", _spd_inverse(Mhat[free]), phat[free]))
+        V = V.at[free].set(_bmm(_spd_inverse(Mhat[free]), phat[free]))
     if world.size:
         c = child[world]
         X, y, Sinv, r = eliminate(world, c)
-        V = V.at[c].set(y + jnp.einsum("nik,nkl,nlm->nim", X, Sinv, r))
+        V = V.at[c].set(y + _bmm(X, _bmm(Sinv, r)))
     for js, c, pa, X, y, Sinv, r in reversed(saved):
-        lam = jnp.einsum("nkl,nlm->nkm", Sinv, r - jnp.einsum("nki,nim->nkm", Jp[js], V[pa]))
-        V = V.at[c].set(y + jnp.einsum("nik,nkm->nim", X, lam))
+        lam = _bmm(Sinv, r - _bmm(Jp[js], V[pa]))
+        V = V.at[c].set(y + _bmm(X, lam))
     return V
 
 
