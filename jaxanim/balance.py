@@ -1,0 +1,449 @@
+r"""Static balance by Jacobian-transpose control (course notes §1.O, eqs. 7.10-7.12).
+
+A character standing on both feet holds its pose by stable PD (``spd`` of
+:func:`jaxanim.physics.step`) and keeps its whole-body centre of mass ``c`` over its feet with a
+**virtual force** at ``c``, turned into joint torques of the stance legs by the Jacobian transpose:
+
+.. math::
+
+    f = P \big(k_p (\bar c - c) - k_d \dot c\big), \qquad
+    \tau_i = (c - p_i) \times f / n_\text{legs}
+    \quad (i \in \text{ankle, knee, hip of each leg})
+
+(eq. 7.10 and 7.12). ``P = I - u u^T`` keeps the horizontal components (``u`` = world up, minus
+gravity's direction: ``+Y``), ``c = \sum_b m_b x_b / M`` and ``\dot c = \sum_b m_b v_b / M`` are the
+whole-body centre of mass and its velocity, ``p_i`` is joint ``i``'s world anchor, and the force is
+shared equally by the ``n_\text{legs}`` (two) stance legs. ``\bar c``, the **support centre**, is by
+default (``support="feet"``) the mean of the feet bodies' centres of mass (bodies named with
+``foot_names``: the foot and toe boxes, i.e. the mean of their contact corners) projected on the
+ground, recomputed every step; ``support="initial"`` uses instead the centre of mass of the given
+pose, fixed (a float ``support`` in ``[0, 1]`` blends the two: the weight of the feet centre;
+it is ``args["support_weight"]``, so it can be swept too).
+
+**A pose that can stand.** In the first frame of CMU clip ``01_01`` the box feet of
+:func:`~jaxanim.character.build_character` are pitched 11 degrees toe-down and rolled (only their
+front edges touch the ground) and the whole-body centre of mass lies 2.5 cm *behind* the heels (a
+box foot starts at the ankle; a real heel sticks out behind it). No joint torques can hold that
+frame: with the centre of mass outside the support polygon a stiff body starting at rest falls
+back. :func:`standing_pose` makes the nearest pose that can stand: feet flat, the body turned
+about the ankles so that ``c`` is over the feet centre, the lowest point on the ground; the other
+joint angles are the frame's. Hold it with ``kp`` of several thousand N m / rad: at 1000 the
+ankles (two in parallel against the gravitational stiffness ``m g h`` of about 700 N m / rad and
+the knees in series) give way and the character topples slowly even with the balance law.
+
+**Signs.** ``tau_i`` is the torque that the leg below joint ``i`` (the foot side, which pushes on
+the ground) exerts on the part above it (the centre-of-mass side): the torque of ``f`` at ``c``
+about ``p_i``. :func:`jaxanim.physics.step` applies ``joint_torque[j]`` as ``+tau`` on
+``joints.child[j]`` and ``-tau`` on ``joints.parent[j]``; in a character built by
+:func:`jaxanim.character.build_character` the parent is the body nearer the pelvis (root), i.e. the
+centre-of-mass side, so ``joint_torque[i] = -tau_i``. (:func:`stance_leg_joints` accepts only
+joints on the path from a foot to the root, whose child is on the foot side, and returns that
+sign, ``-1``, with each joint.)
+
+**Push.** A horizontal push is an external force ``push_force`` (N, world frame) on the centre of
+mass of body ``push_body`` during ``push_start <= t < push_start + push_duration`` (``t = k dt``
+at step ``k``).
+
+Every gain and the push are arrays in the controller's ``args``, so ``jax.vmap`` sweeps them with a
+single compilation (see ``examples/balance_sweep.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._errors import JaxanimError
+from . import rotations as rot
+from .character import Character, character_state, spd_targets
+from .contact import contact_points
+from .fk import forward_kinematics, global_to_local
+from .joints import Joints
+from .rigid import BodyState, RigidBodies
+
+__all__ = [
+    "balance_controller", "center_of_mass", "joint_anchors", "stance_leg_joints", "standing_pose", "stood",
+    "support_centre",
+]
+
+_SUPPORTS = {"feet": 1.0, "initial": 0.0}  # the weight of the feet centre in c_bar
+
+
+def center_of_mass(bodies: RigidBodies, state: BodyState) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
+    """The whole-body centre of mass and its velocity ``(c [3], c_dot [3])`` (world frame, m, m/s)."""
+    m = bodies.mass / jnp.sum(bodies.mass)
+    return m @ state.position, m @ state.linear_velocity
+
+
+def joint_anchors(joints: Joints, state: BodyState) -> Float[Array, "J 3"]:
+    """Every joint's anchor in the world frame (metres), seen from its child body."""
+    chi = np.asarray(joints.child, int)
+    anchor = joints.anchor_child.astype(state.position.dtype)
+    return state.position[chi] + rot.quat_apply(state.orientation[chi], anchor)
+
+
+def _up(bodies: RigidBodies) -> np.ndarray:
+    g = np.asarray(bodies.gravity, float)
+    n = np.linalg.norm(g)
+    return -g / n if n > 0 else np.array([0.0, 1.0, 0.0])
+
+
+def _foot_bodies(character: Character, foot_names: Sequence[str]) -> list[int]:
+    names = character.model.bodies.names
+    feet = [b for b, n in enumerate(names) if any(s in n for s in foot_names)]
+    if not feet:
+        raise JaxanimError(f"foot_names: no body name contains any of {tuple(foot_names)!r}; bodies are {names!r}")
+    return feet
+
+
+def support_centre(
+    character: Character, state: BodyState, *, foot_names: Sequence[str] = ("Foot", "Toe")
+) -> Float[Array, " 3"]:
+    """The support centre ``c_bar``: the mean of the feet bodies' centres (bodies whose names contain
+    one of ``foot_names``), projected on the horizontal plane through the origin (height 0 along
+    up; only the horizontal components are used by the balance law)."""
+    feet = _foot_bodies(character, foot_names)
+    up = jnp.asarray(_up(character.model.bodies), state.position.dtype)
+    p = jnp.mean(state.position[np.asarray(feet)], axis=0)
+    return p - (p @ up) * up
+
+
+def stance_leg_joints(
+    character: Character,
+    *,
+    ankle_names: Sequence[str] = ("Foot", "Ankle"),
+    exclude_names: Sequence[str] = ("Toe",),
+    chain_length: int = 3,
+    leg_joints: Sequence[Sequence[str]] | None = None,
+) -> tuple[tuple[tuple[int, ...], ...], tuple[tuple[int, ...], ...]]:
+    """The joints of each stance leg and the sign that turns the leg torque into ``joint_torque``.
+
+    By default every joint whose name contains one of ``ankle_names`` and none of ``exclude_names``
+    is an ankle (CMU: ``LeftFoot``, ``RightFoot``), and its leg is the ankle and the next
+    ``chain_length - 1`` joints towards the root (knee ``LeftLeg``, hip ``LeftUpLeg``).
+    ``leg_joints`` gives the legs explicitly by joint name instead, e.g.
+    ``(("LeftFoot", "LeftLeg", "LeftUpLeg"), ("RightFoot", "RightLeg", "RightUpLeg"))``: each
+    joint must lie between that leg's first joint (its lowest) and the root.
+
+    Returns:
+        ``(legs, signs)``: per leg the joint indices (ankle first) and, per joint, the sign that
+        turns the leg torque into ``joint_torque``: ``-1``, the joint's child being on the foot
+        side (``joint_torque = -tau``, see the module docstring).
+
+    Raises:
+        JaxanimError: no ankle found, an unknown joint name (the valid ones are listed), or a
+            joint that is not on its leg's path to the root.
+    """
+    joints = character.model.joints
+    names = joints.names
+    parent_joint = {c: j for j, c in enumerate(joints.child)}  # body -> the joint above it
+
+    def path_up(j0: int) -> list[int]:  # joints from j0 to the root
+        out, j = [], j0
+        while j is not None:
+            out.append(j)
+            j = parent_joint.get(joints.parent[j])
+        return out
+
+    if leg_joints is None:
+        if not isinstance(chain_length, (int, np.integer)) or chain_length < 1:
+            raise JaxanimError(f"chain_length: expected an int >= 1, got {chain_length!r}")
+        ankles = [j for j, n in enumerate(names)
+                  if any(s in n for s in ankle_names) and not any(s in n for s in exclude_names)]
+        if not ankles:
+            raise JaxanimError(f"ankle_names: no joint name contains any of {tuple(ankle_names)!r} (excluding "
+                               f"{tuple(exclude_names)!r}); joints are {names!r}. Pass leg_joints= explicitly.")
+        legs = tuple(tuple(path_up(a)[:chain_length]) for a in ankles)
+        return legs, tuple(tuple(-1 for _ in leg) for leg in legs)
+    legs, signs = [], []
+    for leg in leg_joints:
+        if isinstance(leg, str) or not len(leg):
+            raise JaxanimError(f"leg_joints: expected a sequence of legs, each a non-empty sequence of joint names, "
+                               f"got {leg_joints!r}")
+        idx = []
+        for n in leg:
+            if n not in names:
+                raise JaxanimError(f"leg_joints: unknown joint {n!r}; joints are {names!r}")
+            idx.append(names.index(n))
+        path = path_up(idx[0])
+        for n, j in zip(leg, idx):
+            if j not in path:
+                raise JaxanimError(f"leg_joints: joint {n!r} is not between {leg[0]!r} and the root")
+        legs.append(tuple(idx))
+        signs.append(tuple(-1 for _ in idx))
+    return tuple(legs), tuple(signs)
+
+
+def _body_index(character: Character, body) -> int:
+    names = character.model.bodies.names
+    if isinstance(body, str):
+        if body not in names:
+            raise JaxanimError(f"push body: unknown body {body!r}; bodies are {names!r}")
+        return names.index(body)
+    b = int(body)
+    if not 0 <= b < len(names):
+        raise JaxanimError(f"push body: expected an index in [0, {len(names)}), got {body!r}")
+    return b
+
+
+def balance_controller(
+    character: Character,
+    rotations: Float[ArrayLike, "joints 4"],
+    translations: Float[ArrayLike, "joints 3"] | None,
+    dt: float,
+    *,
+    kp: Float[ArrayLike, "#J"] = 5000.0,
+    kd: Float[ArrayLike, "#J"] = 500.0,
+    balance_kp: Float[ArrayLike, ""] = 3000.0,
+    balance_kd: Float[ArrayLike, ""] = 600.0,
+    max_force: Float[ArrayLike, ""] = np.inf,
+    push: tuple | None = None,
+    support: str | float = "feet",
+    foot_names: Sequence[str] = ("Foot", "Toe"),
+    ankle_names: Sequence[str] = ("Foot", "Ankle"),
+    chain_length: int = 3,
+    leg_joints: Sequence[Sequence[str]] | None = None,
+) -> tuple:
+    """A static-balance controller for :func:`jaxanim.physics.rollout` (see the module docstring).
+
+    Every step it returns ``spd = (targets, kp, kd)``: stable PD holding the pose
+    ``(rotations, translations)`` (:func:`jaxanim.character.spd_targets`); ``joint_torque [J, 3]``:
+    the Jacobian-transpose torques of the virtual force on the stance legs (zero elsewhere); and
+    ``force [B, 3]``: the push (zero outside its time window). No root force ("servo") is used.
+
+    Args:
+        character: the :class:`~jaxanim.character.Character`.
+        rotations, translations: the pose to hold (file units), e.g. a clip's first frame.
+        dt: the control step, seconds (the rollout's ``dt``; used for the push timing).
+        kp, kd: stable-PD gains, N m / rad and N m s / rad, scalar or per joint ``[J]`` (defaults
+            5000 and 500: stiff enough to stand, see the module docstring).
+        balance_kp, balance_kd: the virtual force's gains, N/m and N s/m (defaults 3000 and 600:
+            with 1000 and 200 the CMU character overshoots after a 150 N, 0.2 s push and falls).
+        max_force: the virtual force's norm is clipped to this (N; default no clipping).
+        push: ``None`` (no push) or ``(force [3] (N, world frame), body (name or index), start (s),
+            duration (s))``. Without a push the ``args`` still carry a zero push, so pushed and
+            unpushed runs share one compiled rollout.
+        support: ``"feet"`` (``c_bar`` = mean of the feet bodies' centres, every step),
+            ``"initial"`` (the pose's centre of mass) or a weight in ``[0, 1]`` of the feet centre
+            in a blend of the two (``args["support_weight"]``).
+        foot_names: substrings of the feet bodies' names (for ``support="feet"``).
+        ankle_names, chain_length, leg_joints: which joints carry the leg torques (see
+            :func:`stance_leg_joints`).
+
+    Returns:
+        ``(controller, args)`` for ``rollout(..., controller=controller, controller_args=args)``.
+        ``args`` is a dict of arrays: ``kp``, ``kd`` ``[J]``; ``balance_kp``, ``balance_kd``,
+        ``max_force``; ``push_force [3]``, ``push_body`` (int), ``push_start``, ``push_duration``;
+        ``target [3]`` (``c_bar`` for ``support="initial"``, unused for ``"feet"``). ``vmap`` over
+        any of them sweeps it without recompiling.
+
+    Raises:
+        JaxanimError: an unknown ``support``, a bad push, or no feet / legs found by name.
+    """
+    if isinstance(support, str) and support not in _SUPPORTS or not isinstance(support, str) and not 0 <= support <= 1:
+        raise JaxanimError(f"support: expected one of {tuple(_SUPPORTS)} or a weight in [0, 1], got {support!r}")
+    if not dt > 0:
+        raise JaxanimError(f"dt: expected > 0, got {dt!r}")
+    model = character.model
+    bodies, joints = model.bodies, model.joints
+    dtype = bodies.mass.dtype
+    B, Jn = bodies.num_bodies, joints.num_joints
+    legs, signs = stance_leg_joints(character, ankle_names=ankle_names, chain_length=chain_length,
+                                    leg_joints=leg_joints)
+    _foot_bodies(character, foot_names)  # raises when no body is a foot
+    # Per joint: the weight of the virtual force it carries (sign / number of legs), zero off the legs.
+    weight = np.zeros(Jn)
+    for leg, sg in zip(legs, signs):
+        for j, s in zip(leg, sg):
+            weight[j] += s / len(legs)
+    weight = jnp.asarray(weight, dtype)
+    up = jnp.asarray(_up(bodies), dtype)
+    horizontal = jnp.eye(3, dtype=dtype) - jnp.outer(up, up)
+    targets = spd_targets(character, rotations, translations)
+    c0, _ = center_of_mass(bodies, character_state(character, rotations, translations))
+    if push is None:
+        push = (np.zeros(3), 0, 0.0, 0.0)
+    if not (isinstance(push, (tuple, list)) and len(push) == 4):
+        raise JaxanimError("push: expected (force [3], body (name or index), start, duration) or None")
+    p_force = jnp.asarray(push[0], dtype)
+    if p_force.shape != (3,):
+        raise JaxanimError(f"push force: expected shape (3,), got {p_force.shape}")
+    args = dict(
+        kp=jnp.broadcast_to(jnp.asarray(kp, dtype), (Jn,)),
+        kd=jnp.broadcast_to(jnp.asarray(kd, dtype), (Jn,)),
+        balance_kp=jnp.asarray(balance_kp, dtype), balance_kd=jnp.asarray(balance_kd, dtype),
+        max_force=jnp.asarray(max_force, dtype),
+        push_force=p_force, push_body=jnp.asarray(_body_index(character, push[1]), jnp.int32),
+        push_start=jnp.asarray(push[2], dtype), push_duration=jnp.asarray(push[3], dtype),
+        target=c0, support_weight=jnp.asarray(_SUPPORTS[support] if isinstance(support, str) else support, dtype),
+    )
+    h = float(dt)
+    body_ids = jnp.arange(B)
+
+    def controller(state, step, a):
+        c, c_dot = center_of_mass(bodies, state)
+        w = a["support_weight"]
+        c_bar = w * support_centre(character, state, foot_names=foot_names) + (1.0 - w) * a["target"]
+        f = horizontal @ (a["balance_kp"] * (c_bar - c) - a["balance_kd"] * c_dot)
+        norm = jnp.linalg.norm(f)
+        f = f * jnp.minimum(1.0, a["max_force"] / jnp.maximum(norm, jnp.finfo(dtype).tiny))
+        p = joint_anchors(joints, state)
+        tau = jnp.cross(c[None, :] - p, f[None, :]) * weight[:, None]  # sign_i tau_i / n_legs
+        t = step * h
+        on = (t >= a["push_start"]) & (t < a["push_start"] + a["push_duration"])
+        force = jnp.where((body_ids == a["push_body"])[:, None] & on, a["push_force"][None, :], 0.0)
+        return dict(spd=(targets, a["kp"], a["kd"]), joint_torque=tau, force=force)
+
+    return controller, args
+
+
+def _heights(character: Character, state: BodyState) -> tuple[np.ndarray, np.ndarray]:
+    """``(body [K], height [K])``: every contact point's owner and signed distance to the ground plane."""
+    body, local, radius = contact_points(character.model.bodies)
+    ground = character.model.ground
+    p = state.position[body] + rot.quat_apply(state.orientation[body], local)
+    return body, np.asarray(p @ ground.normal.astype(p.dtype) - ground.offset - radius)
+
+
+def standing_pose(
+    character: Character,
+    rotations: Float[ArrayLike, "joints 4"],
+    translations: Float[ArrayLike, "joints 3"] | None = None,
+    *,
+    foot_names: Sequence[str] = ("Foot", "Toe"),
+    ankle_names: Sequence[str] = ("Foot", "Ankle"),
+    exclude_names: Sequence[str] = ("Toe",),
+    lean: bool = True,
+    clearance: float = 0.0,
+    iterations: int = 8,
+) -> tuple[Array, Array]:
+    """A pose close to ``(rotations, translations)`` that stands statically on flat ground.
+
+    Mocap frames rarely balance the simulated body: in CMU ``01_01``'s first frame the box feet
+    (which start at the ankle: no heel) are pitched 11 degrees toe-down and rolled, and the centre of
+    mass lies 2.5 cm behind the heels, so that frame cannot stand however the joints are driven
+    (see the module docstring). This host-side helper
+
+    1. turns each foot body (the bodies named with ``foot_names`` at or below the ankles, the
+       skeleton joints named with ``ankle_names`` and not ``exclude_names``) so that its box lies
+       flat: its length and width axes horizontal;
+    2. with ``lean``, turns the whole body about the ankles' midpoint (the feet are flattened again
+       after the turn): a pitch about the horizontal axis normal to ``c_bar - c`` until the
+       horizontal centre of mass ``c`` sits on the support centre ``c_bar`` along that direction
+       (:func:`support_centre`) and, with two ankles, a roll about ``c_bar - c`` until both feet
+       are equally low (Newton iterations with finite differences);
+    3. moves the pose along the ground's normal so that its lowest contact point is ``clearance`` metres above
+       the character's ground plane.
+
+    Joint angles other than the ankles' and toes' are unchanged. With unequal legs the roll leaves
+    ``c`` to one side of ``c_bar`` (7 cm for CMU ``01_01``, inside the support polygon).
+
+    Returns:
+        ``(rotations [joints, 4], translations [joints, 3])`` in file units.
+
+    Raises:
+        JaxanimError: no ankle joint found by name.
+    """
+    skel = character.skeleton
+    J = skel.num_joints
+    up = _up(character.model.bodies)
+    q = skel.rest_rotations(jnp.float64) if rotations is None else jnp.asarray(rotations, jnp.float64)
+    t = None if translations is None else jnp.asarray(translations, jnp.float64)
+    fk = forward_kinematics(skel, q, t)
+    R0 = np.asarray(fk.rotations, float)
+    P0 = np.asarray(fk.positions, float) * character.unit
+    ankles = [j for j, n in enumerate(skel.names)
+              if any(s in n for s in ankle_names) and not any(s in n for s in exclude_names)]
+    if not ankles:
+        raise JaxanimError(f"ankle_names: no skeleton joint name contains any of {tuple(ankle_names)!r}; joints are "
+                           f"{skel.names!r}")
+    below = np.zeros(J, int) - 1  # the ankle each joint hangs below (-1: above the ankles)
+    for j in range(J):
+        a = j
+        while a >= 0 and a not in ankles:
+            a = skel.parents[a]
+        below[j] = a
+    # (1) Flat feet: each foot body (box length along body z, width along body x) turned flat.
+    index = {j: b for b, j in enumerate(character.body_joint)}
+    foot_body = [j for j in range(J) if below[j] >= 0 and j in index
+                 and any(s in skel.names[j] for s in foot_names)]
+    flat = {}
+    for j in foot_body:
+        Rb = R0[j] @ np.asarray(rot.quat_to_matrix(character.body_rotation[index[j]]))
+        z = Rb[:, 2] - (Rb[:, 2] @ up) * up
+        z /= np.linalg.norm(z)
+        x = np.cross(up, z)
+        target = np.stack([x, up, z], axis=1)
+        if Rb[:, 1] @ up < 0:  # keep the box's own up side up (a half turn about z otherwise)
+            target = np.stack([-x, -up, z], axis=1)
+        flat[j] = target @ Rb.T
+
+    def pose(rotvec: np.ndarray):
+        pivot = np.mean(P0[ankles], axis=0)
+        Rl = np.asarray(rot.quat_to_matrix(rot.rotvec_to_quat(jnp.asarray(rotvec))))
+        R = np.einsum("ij,njk->nik", Rl, R0)
+        P = pivot + (P0 - pivot) @ Rl.T
+        F = {}
+        for j in range(J):  # parents first
+            if below[j] < 0:
+                continue
+            p = skel.parents[j]
+            F[j] = flat.get(j, F.get(p, np.eye(3)))
+            R[j] = F[j] @ R0[j]
+            if j not in ankles:
+                P[j] = P[p] + R[p] @ R0[p].T @ (P0[j] - P0[p])
+        qs, ts = global_to_local(skel, jnp.asarray(R), jnp.asarray(P / character.unit))
+        return qs, ts
+
+    body_below = np.asarray([below[j] for j in character.body_joint])
+
+    def residual(theta: np.ndarray, d: np.ndarray):
+        # [c_bar - c along d, height of the first foot's lowest point minus the second's]
+        qs, ts = pose(theta[0] * np.cross(up, d) + theta[1] * d)
+        s = character_state(character, qs, ts)
+        c, _ = center_of_mass(character.model.bodies, s)
+        r = [float(np.asarray(support_centre(character, s, foot_names=foot_names) - c) @ d)]
+        if len(ankles) == 2:
+            cbody, h = _heights(character, s)
+            r.append(float(h[body_below[cbody] == ankles[0]].min() - h[body_below[cbody] == ankles[1]].min()))
+        return np.asarray(r), (qs, ts)
+
+    qs, ts = pose(np.zeros(3))
+    s = character_state(character, qs, ts)
+    c, _ = center_of_mass(character.model.bodies, s)
+    e = np.asarray(support_centre(character, s, foot_names=foot_names) - c)
+    e = e - (e @ up) * up
+    if lean and np.linalg.norm(e) > 1e-9:
+        d = e / np.linalg.norm(e)
+        theta = np.zeros(2)
+        for _ in range(iterations):  # Newton with forward differences (two unknowns: pitch, roll)
+            r, (qs, ts) = residual(theta, d)
+            if np.max(np.abs(r)) < 1e-6:
+                break
+            n = r.size
+            Jac = np.stack([(residual(theta + 1e-4 * np.eye(2)[k], d)[0] - r) / 1e-4 for k in range(n)], axis=1)
+            theta[:n] = theta[:n] - np.linalg.solve(Jac, r)
+        else:
+            r, (qs, ts) = residual(theta, d)
+    # (3) Vertical placement.
+    low = float(_heights(character, character_state(character, qs, ts))[1].min())
+    root = [j for j in range(J) if skel.parents[j] < 0]
+    shift = (clearance - low) * np.asarray(character.model.ground.normal, float) / character.unit
+    ts = ts.at[np.asarray(root)].add(jnp.asarray(shift, ts.dtype))
+    return qs, ts
+
+
+def stood(
+    character: Character, initial: BodyState, trajectory: BodyState, *, height_tolerance: float = 0.05
+) -> Array:
+    """Whether the character stayed up: its centre of mass never fell below ``1 - height_tolerance``
+    of its initial height (along up) in the recorded ``trajectory`` (leading time axis). A scalar
+    bool; ``vmap`` it over a batch of rollouts."""
+    up = jnp.asarray(_up(character.model.bodies), initial.position.dtype)
+    c0, _ = center_of_mass(character.model.bodies, initial)
+    m = character.model.bodies.mass / jnp.sum(character.model.bodies.mass)
+    heights = jnp.einsum("b,tbi,i->t", m, trajectory.position, up)
+    return jnp.all(heights >= (1.0 - height_tolerance) * (c0 @ up))
