@@ -1,7 +1,7 @@
 """Sweep static balance over (k_p, k_d, push force) with one vmapped rollout; write a fall map PNG.
 
-The character is built from a BVH clip's first frame made standable by
-:func:`jaxanim.balance.standing_pose` and held by stable PD plus the Jacobian-transpose balance law
+The character is built in a BVH clip's first frame (its soles fitted to that frame, see
+:func:`jaxanim.character.build_character`) and holds it by stable PD plus the Jacobian-transpose balance law
 of :func:`jaxanim.balance.balance_controller` (no root force). Every grid point gets a horizontal
 push on the torso; a point "falls" when the centre of mass drops below 95 % of its start height
 (:func:`jaxanim.balance.stood`) or the rollout is stopped. All gains and the push are arrays in
@@ -33,9 +33,8 @@ def setup(bvh: pathlib.Path, dt: float, push_body: str, push_start: float, push_
     skel, motion = jaxanim.read_bvh(bvh)[:2]
     q0, t0 = motion.rotations[0], motion.translations[0]
     char, _ = character.build_character(skel, q0, t0, ground=contact.make_ground("complementarity"))
-    q, t = balance.standing_pose(char, q0, t0)
-    state = character.character_state(char, q, t)
-    ctrl, args = balance.balance_controller(char, q, t, dt, push=(np.zeros(3), push_body, push_start, push_duration))
+    state = character.character_state(char, q0, t0)
+    ctrl, args = balance.balance_controller(char, q0, t0, dt, push=(np.zeros(3), push_body, push_start, push_duration))
     return char, state, ctrl, args
 
 
@@ -94,8 +93,8 @@ def main(argv=None) -> np.ndarray:
     p.add_argument("--kd-max", type=float, default=1200.0, help="largest balance k_d, N s/m (grid from 0)")
     p.add_argument("--push-min", type=float, default=100.0, help="smallest push, N")
     p.add_argument("--push-max", type=float, default=250.0, help="largest push, N")
-    p.add_argument("--push-direction", type=float, nargs=3, default=(0.0, 0.0, -1.0),
-                   help="horizontal push direction, world frame (default -Z: backwards for the CMU clip)")
+    p.add_argument("--push-direction", type=float, nargs=3, default=(0.0, 0.0, 1.0),
+                   help="horizontal push direction, world frame (default +Z: forwards, heels to toes, for the CMU clip)")
     p.add_argument("--push-body", default="Spine", help="body pushed (its centre of mass)")
     p.add_argument("--push-start", type=float, default=0.5, help="push start, s")
     p.add_argument("--push-duration", type=float, default=0.2, help="push duration, s")

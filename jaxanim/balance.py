@@ -20,16 +20,16 @@ ground, recomputed every step; ``support="initial"`` uses instead the centre of 
 pose, fixed (a float ``support`` in ``[0, 1]`` blends the two: the weight of the feet centre;
 it is ``args["support_weight"]``, so it can be swept too).
 
-**A pose that can stand.** In the first frame of CMU clip ``01_01`` the box feet of
-:func:`~jaxanim.character.build_character` are pitched 11 degrees toe-down and rolled (only their
-front edges touch the ground) and the whole-body centre of mass lies 2.5 cm *behind* the heels (a
-box foot starts at the ankle; a real heel sticks out behind it). No joint torques can hold that
-frame: with the centre of mass outside the support polygon a stiff body starting at rest falls
-back. :func:`standing_pose` makes the nearest pose that can stand: feet flat, the body turned
-about the ankles so that ``c`` is over the feet centre, the lowest point on the ground; the other
-joint angles are the frame's. Hold it with ``kp`` of several thousand N m / rad: at 1000 the
-ankles (two in parallel against the gravitational stiffness ``m g h`` of about 700 N m / rad and
-the knees in series) give way and the character topples slowly even with the balance law.
+**A pose that can stand.** A character built in a mocap frame by
+:func:`~jaxanim.character.build_character` stands on soles laid flat in that frame, with heels, and
+levelled (CMU ``01_01``'s first frame stands as it is: its centre of mass is over the heels, and
+the left foot, 2 cm higher than the right in the clip, gets a deeper sole). For another pose than
+the build pose the soles are usually tilted; :func:`standing_pose` makes the nearest pose that can
+stand: feet flat, the body turned about the ankles so that ``c`` is over the feet centre, the
+lowest point on the ground; the other joint angles are the frame's. Hold a pose with ``kp`` of
+several thousand N m / rad: at 1000 the ankles (two in parallel against the gravitational
+stiffness ``m g h`` of about 700 N m / rad and the knees in series) give way and the character
+topples slowly even with the balance law.
 
 **Signs.** ``tau_i`` is the torque that the leg below joint ``i`` (the foot side, which pushes on
 the ground) exerts on the part above it (the centre-of-mass side): the torque of ``f`` at ``c``
@@ -322,10 +322,8 @@ def standing_pose(
 ) -> tuple[Array, Array]:
     """A pose close to ``(rotations, translations)`` that stands statically on flat ground.
 
-    Mocap frames rarely balance the simulated body: in CMU ``01_01``'s first frame the box feet
-    (which start at the ankle: no heel) are pitched 11 degrees toe-down and rolled, and the centre of
-    mass lies 2.5 cm behind the heels, so that frame cannot stand however the joints are driven
-    (see the module docstring). This host-side helper
+    Mocap frames rarely balance the simulated body when it was built in another pose: its soles are
+    flat in the build pose only (see the module docstring). This host-side helper
 
     1. turns each foot body (the bodies named with ``foot_names`` at or below the ankles, the
        skeleton joints named with ``ankle_names`` and not ``exclude_names``) so that its box lies

@@ -8,7 +8,13 @@ a capsule along the mean child direction whose tip-to-tip length is the mean off
 whose radius comes from the joint's name (rough human proportions of the height: torso 0.08,
 head 0.06, thigh 0.05, shank 0.04, upper arm 0.035, forearm 0.03, hand 0.02; other names
 ``radius_ratio`` times the length, clamped to ``[0.025, 0.07]`` of the height); feet and toes
-(names containing ``foot_names``) get boxes of the same extent so that they stand flat.
+(names containing ``foot_names``) get **soles**: boxes laid flat in the pose the character is built
+in (along the segment's horizontal heading, the bottom 0.6 r below the segment's lower end); a
+foot's sole (one whose parent is not a sole) reaches back past the ankle for a heel (``heel``,
+0.35 of its length: the ankle sits over the back third of a human foot), and soles that end up
+less than ``sole_fit`` (3 cm) above the lowest one are deepened to its level, so that a mocap
+frame of a standing subject stands on both feet. (A sole whose segment is steeper than 60 degrees
+in the build pose stays a box along the segment.)
 Masses are proportional to the shapes' volumes and sum to ``total_mass`` (default 70 kg).
 Bodiless joints (zero-length segments, as CMU's ``Hips``, ``LHipJoint``'s parent and the chest
 junction) are welded into the nearest ancestor with a body; bodies with no such ancestor hang off
@@ -116,6 +122,8 @@ def build_character(
     radius_ratio: float = 0.2,
     min_length: float = 0.035,
     foot_names: tuple[str, ...] = ("Foot", "Toe"),
+    heel: float = 0.35,
+    sole_fit: float = 0.03,
     ground: Ground | None = None,
     erp: float = 0.5,
     cfm: float = 1e-10,
@@ -130,7 +138,11 @@ def build_character(
         unit: metres per file unit.
         radius_ratio: capsule radius / segment length (then clamped, see the module docstring).
         min_length: segments shorter than this fraction of the height are ignored.
-        foot_names: substrings of joint names whose bodies are boxes.
+        foot_names: substrings of joint names whose bodies are boxes (soles, see the module
+            docstring).
+        heel: a foot's heel length behind its joint, as a fraction of the foot's length.
+        sole_fit: metres; soles less than this above the lowest one in the build pose are
+            deepened to reach its level (0: no fitting).
         ground: the ground contact (default none; :func:`jaxanim.contact.make_ground`).
         erp, cfm: as for :func:`jaxanim.physics.make_model`.
 
@@ -143,6 +155,8 @@ def build_character(
     for name, value in (("total_mass", total_mass), ("height", height), ("radius_ratio", radius_ratio)):
         if not value > 0:
             raise JaxanimError(f"{name}: expected > 0, got {value!r}")
+    if not heel >= 0 or not sole_fit >= 0:
+        raise JaxanimError(f"heel, sole_fit: expected >= 0, got {heel!r}, {sole_fit!r}")
     if unit is not None and not unit > 0:
         raise JaxanimError(f"unit: expected > 0 (metres per file unit), got {unit!r}")
     J = skeleton.num_joints
@@ -154,8 +168,14 @@ def build_character(
             raise JaxanimError("skeleton: zero rest height along Y; give unit= (metres per file unit)")
         unit = height / file_height
     H = file_height * unit  # metres
+    # The build pose (world frame, metres): soles are laid flat in it.
+    fk = forward_kinematics(skeleton, *_pose(skeleton, rotations, translations))
+    p_world = np.asarray(fk.positions) * unit
+    R_world = np.asarray(fk.rotations)
+    up = np.array([0.0, 1.0, 0.0])
     # Bodies: shapes in the joint frames (metres).
     body_joint, shapes, centres, body_rots = [], [], [], []
+    soles = []  # (body, bottom height in the build pose)
     for j in range(J):
         seg = _segments(skeleton, j) * unit
         lengths = np.linalg.norm(seg, axis=1)
@@ -170,13 +190,38 @@ def build_character(
             L = float(np.linalg.norm(seg[k]))
             d = seg[k] / L
         r = _radius(skeleton.names[j], L, H, radius_ratio)
-        if any(s in skeleton.names[j] for s in foot_names):
+        body_joint.append(j)
+        is_foot = any(s in skeleton.names[j] for s in foot_names)
+        s_w = R_world[j] @ (L * d)  # the segment in the build pose
+        s_h = s_w - (s_w @ up) * up
+        if is_foot and np.linalg.norm(s_h) > 0.5 * L:
+            # A sole: a box lying flat in the build pose along the segment's heading, its bottom
+            # 0.6 r below the segment's lower end; a foot (not a toe) reaches `heel` of its length
+            # behind the joint.
+            Lh = float(np.linalg.norm(s_h))
+            parent = skeleton.parents[j]
+            back = heel * Lh if parent < 0 or not any(s in skeleton.names[parent] for s in foot_names) else 0.0
+            z = s_h / Lh
+            shapes.append(["box", [2 * r, 1.2 * r, Lh + back]])
+            centres.append(0.5 * (Lh - back) * z + min(0.0, float(s_w @ up)) * up)  # world, fixed below
+            body_rots.append(np.stack([np.cross(up, z), up, z], axis=1))  # world, fixed below
+            soles.append((len(body_joint) - 1, float(p_world[j] @ up + centres[-1] @ up) - 0.6 * r))
+            continue
+        if is_foot:
             shapes.append(("box", (2 * r, 1.2 * r, L)))
         else:
             shapes.append(("capsule", (r, max(L - 2 * r, 0.2 * L))))
-        body_joint.append(j)
         centres.append(0.5 * L * d)
         body_rots.append(np.asarray(rot.rotation_between(jnp.array([0.0, 0.0, 1.0]), jnp.asarray(d))))
+    # Soles within `sole_fit` above the lowest one reach down to it (mocap feet are rarely level).
+    level = min((h for _, h in soles), default=0.0)
+    for b, h in soles:
+        gap = h - level if h - level <= sole_fit else 0.0
+        shapes[b][1][1] += gap
+        j = body_joint[b]
+        centres[b] = R_world[j].T @ (centres[b] - 0.5 * gap * up)
+        body_rots[b] = np.asarray(rot.matrix_to_quat(jnp.asarray(R_world[j].T @ body_rots[b])))
+        shapes[b] = (shapes[b][0], tuple(shapes[b][1]))
     if not body_joint:
         raise JaxanimError("skeleton: no segment longer than min_length; nothing to simulate")
     vols = np.array([float(shape_mass_properties(k, s, density=1.0)[0]) for k, s in shapes])
@@ -200,8 +245,6 @@ def build_character(
     top = [b for b, j in enumerate(body_joint) if skeleton.parents[j] < 0 or joint_body[skeleton.parents[j]] < 0]
     root = max(top, key=lambda b: masses[b])
     specs = []
-    fk = forward_kinematics(skeleton, *_pose(skeleton, rotations, translations))
-    p_world = np.asarray(fk.positions) * unit
     for b, j in enumerate(body_joint):
         if b == root:
             continue

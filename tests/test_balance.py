@@ -1,6 +1,6 @@
-"""Tests of jaxanim.balance on the CMU clip 01_01 (first frame made standable by standing_pose): the
-character stands 10 s on complementarity ground with stable PD and the Jacobian-transpose balance
-law and no root force, recovers from a documented push, the balance torques have the sign that
+"""Tests of jaxanim.balance on the CMU clip 01_01, its first frame as the target: the character
+stands 10 s on complementarity ground with stable PD and the Jacobian-transpose balance law and no
+root force, recovers from a documented push (and falls without the balance torques), the balance torques have the sign that
 moves the centre of mass towards the support centre, a vmap over gain / push settings equals a
 Python loop of the same compiled rollout, the sweep example runs, and bad input.
 
@@ -27,9 +27,9 @@ DT = 1 / 120  # the notes' control rate
 SECONDS = 10.0
 NUM_STEPS = int(round(SECONDS / DT))
 RECORD_EVERY = 12  # 10 Hz records
-# The documented push: 150 N backwards (-Z, from the toes towards the heels in this clip) on the
+# The documented push: 150 N forwards (+Z, from the heels towards the toes in this clip) on the
 # torso ("Spine" body) for 0.2 s from t = 1 s, an impulse of 30 N s (0.43 m/s on 70 kg).
-PUSH_FORCE = np.array([0.0, 0.0, -150.0])
+PUSH_FORCE = np.array([0.0, 0.0, 150.0])
 PUSH = (np.zeros(3), "Spine", 1.0, 0.2)
 _ATOL_VMAP = 1e-12  # positions (m) and orientations
 _ATOL_VMAP_VEL = 1e-10  # velocities (m/s, rad/s)
@@ -40,11 +40,9 @@ def cmu():
     data = shared_data_dir()
     skel, motion = jaxanim.read_bvh(data / "bvh" / "cmu_01_01_trim300.bvh")[:2]
     q0, t0 = motion.rotations[0], motion.translations[0]
-    char, _ = character.build_character(skel, q0, t0, ground=contact.make_ground("complementarity"))
-    q, t = balance.standing_pose(char, q0, t0)
-    state = character.character_state(char, q, t)
-    ctrl, args = balance.balance_controller(char, q, t, DT, push=PUSH)
-    return char, q0, t0, q, t, state, ctrl, args
+    char, state = character.build_character(skel, q0, t0, ground=contact.make_ground("complementarity"))
+    ctrl, args = balance.balance_controller(char, q0, t0, DT, push=PUSH)
+    return char, q0, t0, state, ctrl, args
 
 
 def _with(args, **changes):
@@ -95,14 +93,25 @@ def _feet_region(char, state):
     return p[:, [0, 2]].min(axis=0), p[:, [0, 2]].max(axis=0)
 
 
+def test_first_frame_stands_on_both_soles(cmu):
+    char, q0, t0, state, *_ = cmu
+    body, local, _ = contact.contact_points(char.model.bodies)
+    p = np.asarray(state.position[body] + rot.quat_apply(state.orientation[body], local))
+    soles = {}
+    for foot in ("LeftFoot", "RightFoot", "LeftToeBase", "RightToeBase"):
+        heights = np.sort(p[np.asarray(body) == char.model.bodies.names.index(foot), 1])
+        np.testing.assert_allclose(heights[:4], heights[0], atol=1e-9, err_msg=f"{foot}: sole not flat")
+        soles[foot] = heights[0]
+    np.testing.assert_allclose(list(soles.values()), min(soles.values()), atol=1e-9, err_msg="soles not level")
+    c = np.asarray(balance.center_of_mass(char.model.bodies, state)[0])
+    lo, hi = _feet_region(char, state)
+    assert np.all(c[[0, 2]] > lo) and np.all(c[[0, 2]] < hi), "CoM not over the feet"
+
+
 def test_standing_pose_is_flat_footed_and_balanced(cmu):
-    char, q0, t0, q, t, state, *_ = cmu
-    # The clip's own first frame: centre of mass behind the heels of the box feet.
-    s0 = character.character_state(char, q0, t0)
-    lo0, hi0 = _feet_region(char, s0)
-    c0 = np.asarray(balance.center_of_mass(char.model.bodies, s0)[0])
-    assert c0[2] < lo0[1], "the clip's first frame was expected to have its centre of mass behind the heels"
-    # The standing pose: flat feet on the ground, centre of mass over the support centre along the lean.
+    char, q0, t0, *_ = cmu
+    q, t = balance.standing_pose(char, q0, t0)
+    state = character.character_state(char, q, t)
     body, local, radius = contact.contact_points(char.model.bodies)
     p = np.asarray(state.position[body] + rot.quat_apply(state.orientation[body], local))
     assert abs(p[:, 1].min()) < 1e-9
@@ -110,10 +119,6 @@ def test_standing_pose_is_flat_footed_and_balanced(cmu):
         heights = p[np.asarray(body) == char.model.bodies.names.index(foot), 1]
         np.testing.assert_allclose(np.sort(heights)[:4], np.sort(heights)[0], atol=1e-9, err_msg=f"{foot} not flat")
     c = np.asarray(balance.center_of_mass(char.model.bodies, state)[0])
-    c_bar = np.asarray(balance.support_centre(char, state))
-    # (solved along the initial direction of c_bar - c, here within 2 degrees of -Z; the roll that
-    # puts both feet down leaves c 7 cm to the side of c_bar)
-    assert abs(c[2] - c_bar[2]) < 1e-3, "centre of mass not over the feet centre (front-back)"
     lo, hi = _feet_region(char, state)
     assert np.all(c[[0, 2]] > lo) and np.all(c[[0, 2]] < hi)
     # Only the ankles (and the toes below them) changed.
@@ -158,7 +163,7 @@ def test_balance_torques_move_the_com_towards_the_support_centre(cmu):
 
 
 def test_stands_10_s_without_root_force(cmu, loop_runs):
-    char, *_, state, _, _ = cmu
+    char, _, _, state, _, _ = cmu
     run = loop_runs["stand"]
     assert run.result == physics.SimResult.successful and int(run.num_steps) == NUM_STEPS
     com = _com(char, run.trajectory)
@@ -166,7 +171,9 @@ def test_stands_10_s_without_root_force(cmu, loop_runs):
     heights = com[:, 1] / c0[1]
     assert heights.min() > 0.95 and heights.max() < 1.05, f"CoM height / start in [{heights.min()}, {heights.max()}]"
     drift = np.linalg.norm((com - c0)[:, [0, 2]], axis=-1)
-    assert drift.max() < 0.03, f"CoM moved {drift.max():.4f} m horizontally"
+    # The law moves the CoM towards the feet centre (16 cm ahead of it in this frame) until the
+    # stable PD holding the pose balances it.
+    assert drift.max() < 0.06, f"CoM moved {drift.max():.4f} m horizontally"
     lo, hi = _feet_region(char, run.final)
     assert np.all(com[:, [0, 2]] > lo) and np.all(com[:, [0, 2]] < hi), "CoM left the feet region"
     assert bool(balance.stood(char, state, run.trajectory))
@@ -174,16 +181,16 @@ def test_stands_10_s_without_root_force(cmu, loop_runs):
 
 
 def test_recovers_from_a_push(cmu, loop_runs):
-    char, *_, state, _, _ = cmu
+    char, _, _, state, _, _ = cmu
     run = loop_runs["push"]
     assert run.result == physics.SimResult.successful
     assert bool(balance.stood(char, state, run.trajectory))
     com = _com(char, run.trajectory)
-    c0 = np.asarray(balance.center_of_mass(char.model.bodies, state)[0])
+    still = _com(char, loop_runs["stand"].trajectory)  # the same character, not pushed
     t = np.arange(1, com.shape[0] + 1) * RECORD_EVERY * DT
-    excursion = np.linalg.norm((com - c0)[:, [0, 2]], axis=-1)
-    assert excursion[t > 1.0].max() > 0.03, "the push did not move the character"
-    assert excursion[t > 8.0].max() < 0.03, f"CoM {excursion[-1]:.4f} m from its start at 10 s"
+    excursion = np.linalg.norm((com - still)[:, [0, 2]], axis=-1)
+    assert excursion[t > 1.0].max() > 0.02, "the push did not move the character"
+    assert excursion[t > 8.0].max() < 0.01, f"CoM {excursion[-1]:.4f} m from the unpushed one at 10 s"
     lo, hi = _feet_region(char, run.final)
     assert np.all(com[:, [0, 2]] > lo) and np.all(com[:, [0, 2]] < hi)
     # The balance law matters: the same push topples the character held by stable PD alone.
@@ -197,7 +204,7 @@ def test_vmap_equals_python_loop(cmu, loop_runs, vmap_runs):
     which stays below 1e-12 in positions and orientations (1e-10 in velocities) over the 10 s while
     the character stands. A falling character's ground impacts amplify it (1e-8 after the fall), so
     for the fall the records are compared up to t = 3 s and the outcome after it."""
-    char, *_, state, _, _ = cmu
+    char, _, _, state, _, _ = cmu
     fall_start = int(3.0 / (RECORD_EVERY * DT))
     for name, run in loop_runs.items():
         vrun = vmap_runs[name]
