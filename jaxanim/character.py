@@ -160,7 +160,8 @@ def build_character(
     if unit is not None and not unit > 0:
         raise JaxanimError(f"unit: expected > 0 (metres per file unit), got {unit!r}")
     J = skeleton.num_joints
-    rest = forward_kinematics(skeleton, skeleton.rest_rotations(jnp.float64))
+    offsets = jnp.broadcast_to(jnp.asarray(skeleton.offsets, jnp.float64), (J, 3))  # = rest translations
+    rest = _forward_kinematics(skeleton, skeleton.rest_rotations(jnp.float64), offsets)
     pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions).reshape(-1, 3)])
     file_height = float(pts[:, 1].max() - pts[:, 1].min())
     if unit is None:
@@ -169,7 +170,8 @@ def build_character(
         unit = height / file_height
     H = file_height * unit  # metres
     # The build pose (world frame, metres): soles are laid flat in it.
-    fk = forward_kinematics(skeleton, *_pose(skeleton, rotations, translations))
+    q_build, t_build = _pose(skeleton, rotations, translations)
+    fk = _forward_kinematics(skeleton, q_build, offsets if t_build is None else t_build)
     p_world = np.asarray(fk.positions) * unit
     R_world = np.asarray(fk.rotations)
     up = np.array([0.0, 1.0, 0.0])
@@ -204,7 +206,7 @@ def build_character(
             z = s_h / Lh
             shapes.append(["box", [2 * r, 1.2 * r, Lh + back]])
             centres.append(0.5 * (Lh - back) * z + min(0.0, float(s_w @ up)) * up)  # world, fixed below
-            body_rots.append(np.stack([np.cross(up, z), up, z], axis=1))  # world, fixed below
+            body_rots.append(np.stack([np.cross(up, z), up, z], axis=1))  # world; local below
             soles.append((len(body_joint) - 1, float(p_world[j] @ up + centres[-1] @ up) - 0.6 * r))
             continue
         if is_foot:
@@ -212,7 +214,7 @@ def build_character(
         else:
             shapes.append(("capsule", (r, max(L - 2 * r, 0.2 * L))))
         centres.append(0.5 * L * d)
-        body_rots.append(np.asarray(rot.rotation_between(jnp.array([0.0, 0.0, 1.0]), jnp.asarray(d))))
+        body_rots.append(d)  # the capsule's axis; a rotation below
     # Soles within `sole_fit` above the lowest one reach down to it (mocap feet are rarely level).
     level = min((h for _, h in soles), default=0.0)
     for b, h in soles:
@@ -220,10 +222,19 @@ def build_character(
         shapes[b][1][1] += gap
         j = body_joint[b]
         centres[b] = R_world[j].T @ (centres[b] - 0.5 * gap * up)
-        body_rots[b] = np.asarray(rot.matrix_to_quat(jnp.asarray(R_world[j].T @ body_rots[b])))
+        body_rots[b] = R_world[j].T @ body_rots[b]
         shapes[b] = (shapes[b][0], tuple(shapes[b][1]))
     if not body_joint:
         raise JaxanimError("skeleton: no segment longer than min_length; nothing to simulate")
+    # Body orientations in their joints' frames, each kind in one call.
+    quats = np.zeros((len(body_joint), 4))
+    sole = np.array([np.ndim(R) == 2 for R in body_rots])
+    if sole.any():
+        quats[sole] = np.asarray(_matrix_to_quat(jnp.asarray(np.stack([R for R in body_rots if np.ndim(R) == 2]))))
+    if (~sole).any():
+        axes = jnp.asarray(np.stack([d for d in body_rots if np.ndim(d) == 1]))
+        quats[~sole] = np.asarray(_rotation_between(jnp.array([0.0, 0.0, 1.0]), axes))
+    body_rots = list(quats)
     vols = np.array([float(shape_mass_properties(k, s, density=1.0)[0]) for k, s in shapes])
     masses = total_mass * vols / vols.sum()
     names = tuple(skeleton.names[j] for j in body_joint)
@@ -255,6 +266,11 @@ def build_character(
     return eqx.tree_at(lambda c: c.model, char, model, is_leaf=lambda x: x is None), state
 
 
+_forward_kinematics = eqx.filter_jit(forward_kinematics)
+_matrix_to_quat = jax.jit(rot.matrix_to_quat)
+_rotation_between = jax.jit(rot.rotation_between)
+
+
 def _pose(skeleton: Skeleton, rotations, translations):
     q = skeleton.rest_rotations(jnp.float64) if rotations is None else jnp.asarray(rotations, jnp.float64)
     check_shape("rotations", q, (skeleton.num_joints, 4), what=f"(joints, 4) = ({skeleton.num_joints}, 4)")
@@ -272,14 +288,19 @@ def character_state(
     bodies: RigidBodies | None = None,
 ) -> BodyState:
     """The bodies' state (at rest) for a pose of the skeleton (file units)."""
+    q, t = _pose(character.skeleton, rotations, translations)
+    bodies = character.model.bodies if bodies is None else bodies
+    return _character_state(character, q, t, bodies)
+
+
+@eqx.filter_jit
+def _character_state(character: Character, q, t, bodies: RigidBodies) -> BodyState:
     skel = character.skeleton
-    q, t = _pose(skel, rotations, translations)
     fk = forward_kinematics(skel, q, t)
     bj = np.asarray(character.body_joint)
     R = fk.rotations[bj]
     x = fk.positions[bj] * character.unit + jnp.einsum("bij,bj->bi", R, character.body_centre)
     orientation = rot.quat_multiply(rot.matrix_to_quat(R), character.body_rotation)
-    bodies = character.model.bodies if bodies is None else bodies
     return make_state(bodies, position=x, orientation=orientation)
 
 
@@ -337,6 +358,13 @@ def spd_targets(character: Character, rotations: Float[Array, "joints 4"],
     return rot.quat_multiply(rot.quat_conjugate(s.orientation[par]), s.orientation[chi])
 
 
+@eqx.filter_jit
+def _clip_targets(character: Character, Q, T):
+    """Every frame's SPD targets and body states (one compiled call, not op by op)."""
+    return (jax.vmap(lambda q, t: spd_targets(character, q, t))(Q, T),
+            jax.vmap(lambda q, t: character_state(character, q, t))(Q, T))
+
+
 def export_mjcf(character: Character, state: BodyState, *, dt: float = 1 / 600, stiffness=None, damping=None) -> str:
     """The character as MuJoCo XML (see :func:`jaxanim.physics.to_mjcf`; ``stiffness`` and
     ``damping`` hold the joints at the pose of ``state``, the ground plane is exported with
@@ -376,8 +404,7 @@ def tracking_controller(
     """
     Q, T = motion.rotations, motion.translations
     F = int(Q.shape[0])
-    targets_all = jax.vmap(lambda q, t: spd_targets(character, q, t))(Q, T)
-    states_all = jax.vmap(lambda q, t: character_state(character, q, t))(Q, T)
+    targets_all, states_all = _clip_targets(character, Q, T)
     root = root_body(character)
     root_x = states_all.position[:, root]
     root_q = states_all.orientation[:, root]
