@@ -45,7 +45,6 @@ import functools
 import os
 import pathlib
 import re
-import statistics
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -60,7 +59,7 @@ from .fk import CLIP, _axis_quat_np, _cast, _dtype_order, _quat_mul_np
 from .peers import PeerUnavailable, require
 from .peers import numpy_fk as numpy_peer
 from .report import Row, Table
-from .timing import compile_time, time_call
+from .timing import compile_time, load_note, sample_call, time_call
 
 __all__ = [
     "EFFECTORS",
@@ -495,28 +494,9 @@ _PIN = "Pinocchio CLIK"
 _SLOW_MAX_BATCH = 1024  # peers and baselines are not run above this in full mode (time budget)
 _SLOW_PEERS = ("optimistix LM", "optimistix GN", "jaxopt LM")
 _CALL_BUDGET_FACTOR = 4.0  # a row is skipped when one call is expected to take > this x max_row_s
-_LONG_CALL_S = 1.0
 
 
-class _Timing(NamedTuple):
-    median: float
-    min: float
-    samples: int
-
-
-def _sample(config: BenchConfig, fn: Callable, args: tuple, first_s: float) -> _Timing:
-    """Time ``fn(*args)``: :func:`time_call` for short calls; for long ones (> 1 s) the first call
-    (already made, ``first_s``) is the first sample and more are taken only within ``max_row_s``."""
-    if first_s <= _LONG_CALL_S:
-        st = time_call(fn, *args, repeats=config.repeats, warmup=max(config.warmup - 1, 0),
-                       max_total_s=config.max_row_s)
-        return _Timing(st.median, st.min, st.repeats)
-    samples = [first_s]
-    while len(samples) < config.repeats and sum(samples) + samples[-1] <= config.max_row_s:
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        samples.append(time.perf_counter() - t0)
-    return _Timing(statistics.median(samples), min(samples), len(samples))
+_sample = sample_call
 
 
 def _fmt_err(ev: IKEvaluation) -> str:
@@ -955,11 +935,7 @@ def run_ik(config: BenchConfig) -> list[Table]:
         except Exception as exc:
             traceback.print_exc()
             table.notes.append(f"profile unavailable: {type(exc).__name__}: {str(exc)[:160]}")
-    load1 = os.getloadavg() if hasattr(os, "getloadavg") else None
-    if load0 is not None:
-        table.notes.append(
-            f"This benchmark took {time.perf_counter() - start:.0f} s; 1-minute load average {load0[0]:.1f} at "
-            f"the start and {load1[0]:.1f} at the end on {os.cpu_count()} logical cores (a load above the core "
-            "count means other processes shared the CPU and inflated every time here)."
-        )
+    note = load_note("ik", start, load0)
+    if note:
+        table.notes.append(note)
     return [table]

@@ -49,7 +49,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -58,10 +57,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import BenchConfig
-from .ik import _sample
 from .peers import PeerUnavailable
-from .report import Row, Table, format_seconds
-from .timing import CompileStats, compile_time
+from .report import Row, Table, format_seconds, measure_row
+from .timing import CompileStats, compile_time, load_note
+from .timing import sample_call as _sample
 
 __all__ = [
     "DARE_BATCHES",
@@ -266,29 +265,8 @@ def _log_row(config: BenchConfig, table: str, row: Row) -> None:
 
 def _add_row(config: BenchConfig, table: Table, impl: str, batch: int | None, make_row: Callable[[], Row],
              is_peer: bool, failures: dict) -> Row | None:
-    """Append ``make_row()`` unless filtered out; a missing peer becomes a skipped row (once per
-    implementation), an exception a failed one. Returns the measured row or ``None``."""
-    if not config.selects(impl):
-        return None
-    if impl in failures:
-        if failures[impl] is None:  # the skipped row is already there
-            return None
-        row = Row(impl, "float64", batch, skipped=failures[impl], is_peer=is_peer)
-    else:
-        try:
-            row = make_row()
-        except (ImportError, PeerUnavailable) as exc:
-            msg = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
-            row = Row(impl, skipped=msg, is_peer=is_peer)
-            failures[impl] = None
-        except Exception as exc:
-            traceback.print_exc()
-            msg = str(exc).splitlines()[0][:200] if str(exc) else ""
-            row = Row(impl, "float64", batch, skipped=f"failed: {type(exc).__name__}: {msg}", is_peer=is_peer)
-            failures[impl] = f"failed at batch {batch} (see that row)"
-    _log_row(config, table.name, row)
-    table.rows.append(row)
-    return row if row.skipped is None else None
+    return measure_row(config, table, impl, batch, make_row, is_peer, failures,
+                       lambda row: _log_row(config, table.name, row))
 
 
 def _timing_note(tm) -> str:
@@ -827,11 +805,7 @@ def run_oc(config: BenchConfig, sizes: OCSizes | None = None, tables: Sequence[s
             out.append(_swing_table(ctx, name))
     if "compile" in tables and ctx.compiles:
         out.append(_compile_table(ctx))
-    if out and load0 is not None:
-        load1 = os.getloadavg()
-        out[-1].notes.append(
-            f"The oc benchmark took {time.perf_counter() - start:.0f} s; 1-minute load average {load0[0]:.1f} at the "
-            f"start and {load1[0]:.1f} at the end on {os.cpu_count()} logical cores (a load above the core count "
-            "means other processes shared the CPU and inflated every time here)."
-        )
+    note = load_note("oc", start, load0)
+    if out and note:
+        out[-1].notes.append(note)
     return out

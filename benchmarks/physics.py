@@ -47,7 +47,6 @@ import functools
 import os
 import pathlib
 import time
-import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -58,8 +57,8 @@ import numpy as np
 
 from . import BenchConfig
 from .peers import PeerUnavailable
-from .report import Row, Table
-from .timing import compile_time, time_call
+from .report import Row, Table, measure_row
+from .timing import SampledTiming, compile_time, load_note, sample_call
 
 __all__ = [
     "BATCHES",
@@ -85,7 +84,6 @@ ROOT_SPEED = 0.05  # m/s, seeded initial root velocity per character (x, z)
 SEED = 0
 PENDULUM_DTS = (1 / 600, 1 / 1200)
 PENDULUM_REF_DT = 1 / 19200
-_LONG_CALL_S = 1.0
 _CALL_BUDGET_FACTOR = 4.0
 _MJ_LOOP = "MuJoCo C mj_step (Python loop)"
 _MJ_ROLLOUT = "MuJoCo C rollout.rollout"
@@ -255,65 +253,26 @@ class _Context:
     compiles: list = dataclasses.field(default_factory=list)  # (impl, batch, CompileStats)
 
 
-@dataclasses.dataclass(frozen=True)
-class _Timing:
-    median: float
-    min: float
-    samples: int
+_sample = sample_call
 
 
-def _sample(config: BenchConfig, fn: Callable, args: tuple, first_s: float) -> _Timing:
-    """:func:`time_call` for short calls; for calls over a second the first call (``first_s``) is
-    the first sample and more are taken only within ``max_row_s``."""
-    if first_s <= _LONG_CALL_S:
-        st = time_call(fn, *args, repeats=config.repeats, warmup=max(config.warmup - 1, 0),
-                       max_total_s=config.max_row_s)
-        return _Timing(st.median, st.min, st.repeats)
-    samples = [first_s]
-    while len(samples) < config.repeats and sum(samples) + samples[-1] <= config.max_row_s:
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        samples.append(time.perf_counter() - t0)
-    return _Timing(float(np.median(samples)), min(samples), len(samples))
-
-
-def _timing_note(tm: _Timing) -> str:
+def _timing_note(tm: SampledTiming) -> str:
     return f"; {tm.samples} timed call{'s' if tm.samples != 1 else ''}" if tm.samples < 3 else ""
 
 
-def _first_line(exc: BaseException) -> str:
-    return str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+def _log_row(config: BenchConfig, table: str, row: Row) -> None:
+    if row.skipped is not None:
+        config.log(f"physics {table} B={row.batch}: {row.implementation}: {row.skipped}")
+        return
+    comp = "" if row.compile_s is None else f", compile {row.compile_s:.2f} s"
+    us = "" if row.us_per_char is None else f"{row.us_per_char:.4g} µs/char-step"
+    config.log(f"physics {table} B={row.batch}: {row.implementation}: {us}{comp}, accuracy {row.accuracy}")
 
 
 def _add_row(config: BenchConfig, table: Table, impl: str, batch: int | None, make_row: Callable[[], Row],
              is_peer: bool, failures: dict) -> Row | None:
-    """Append ``make_row()`` unless filtered out; a missing peer becomes one skipped row, an
-    exception a failed row. Returns the measured row or ``None``."""
-    if not config.selects(impl):
-        return None
-    if impl in failures:
-        if failures[impl] is None:
-            return None
-        row = Row(impl, "float64", batch, skipped=failures[impl], is_peer=is_peer)
-    else:
-        try:
-            row = make_row()
-        except (ImportError, PeerUnavailable) as exc:
-            row = Row(impl, skipped=_first_line(exc), is_peer=is_peer)
-            failures[impl] = None
-        except Exception as exc:  # a failure is reported, not fatal
-            traceback.print_exc()
-            row = Row(impl, "float64", batch, skipped=f"failed: {type(exc).__name__}: {_first_line(exc)}",
-                      is_peer=is_peer)
-            failures[impl] = f"failed at batch {batch} (see that row)"
-    if row.skipped is not None:
-        config.log(f"physics {table.name} B={row.batch}: {impl}: {row.skipped}")
-    else:
-        comp = "" if row.compile_s is None else f", compile {row.compile_s:.2f} s"
-        us = "" if row.us_per_char is None else f"{row.us_per_char:.4g} µs/char-step"
-        config.log(f"physics {table.name} B={row.batch}: {impl}: {us}{comp}, accuracy {row.accuracy}")
-    table.rows.append(row)
-    return row if row.skipped is None else None
+    return measure_row(config, table, impl, batch, make_row, is_peer, failures,
+                       lambda row: _log_row(config, table.name, row))
 
 
 def _character(ctx: _Context, model: str) -> StandingCharacter:
@@ -734,11 +693,7 @@ def run_physics(config: BenchConfig, sizes: PhysicsSizes | None = None,
             out.append(_standing_table(ctx))
     if "pendulum" in tables and sizes.pendulum_seconds > 0:
         out.append(_pendulum_table(ctx))
-    if out and load0 is not None:
-        load1 = os.getloadavg()
-        out[-1].notes.append(
-            f"The physics benchmark took {time.perf_counter() - start:.0f} s; 1-minute load average {load0[0]:.1f} at "
-            f"the start and {load1[0]:.1f} at the end on {os.cpu_count()} logical cores (a load above the core count "
-            "means other processes shared the CPU and inflated every time here)."
-        )
+    note = load_note("physics", start, load0)
+    if out and note:
+        out[-1].notes.append(note)
     return out

@@ -14,7 +14,8 @@ import datetime
 import importlib.metadata
 import os
 import platform
-from collections.abc import Sequence
+import traceback
+from collections.abc import Callable, Sequence
 
 __all__ = [
     "Row",
@@ -96,6 +97,42 @@ class Table:
 
 
 # --- formatting -----------------------------------------------------------------------------------
+def measure_row(config, table: Table, impl: str, batch: int | None, make_row: Callable[[], Row], is_peer: bool,
+                failures: dict, log: Callable[[Row], None]) -> Row | None:
+    """Append ``make_row()`` to ``table`` unless ``config`` filters ``impl`` out, and ``log`` it.
+
+    A missing peer (``ImportError`` or ``PeerUnavailable``) becomes one skipped row for the
+    implementation (``failures[impl] = None``: later batches add nothing); another exception a
+    failed row, and later batches of that implementation a skipped row pointing to it. Returns the
+    measured row, or ``None``."""
+    from .peers import PeerUnavailable
+
+    if not config.selects(impl):
+        return None
+    if impl in failures:
+        if failures[impl] is None:  # the skipped row is already there
+            return None
+        row = Row(impl, "float64", batch, skipped=failures[impl], is_peer=is_peer)
+    else:
+        try:
+            row = make_row()
+        except (ImportError, PeerUnavailable) as exc:
+            row = Row(impl, skipped=_first_line(exc) or type(exc).__name__, is_peer=is_peer)
+            failures[impl] = None
+        except Exception as exc:  # a failure is reported, not fatal
+            traceback.print_exc()
+            row = Row(impl, "float64", batch, skipped=f"failed: {type(exc).__name__}: {_first_line(exc)}",
+                      is_peer=is_peer)
+            failures[impl] = f"failed at batch {batch} (see that row)"
+    log(row)
+    table.rows.append(row)
+    return row if row.skipped is None else None
+
+
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0][:200] if str(exc) else ""
+
+
 def format_seconds(s: float | None) -> str:
     """``1.23 ms``-style rendering with 3 significant digits; an em dash for ``None``."""
     if s is None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import statistics
 import time
 from collections.abc import Callable
@@ -24,7 +25,7 @@ from typing import Any
 
 import jax
 
-__all__ = ["CompileStats", "TimingStats", "compile_time", "time_call"]
+__all__ = ["CompileStats", "SampledTiming", "TimingStats", "compile_time", "load_note", "sample_call", "time_call"]
 
 _LONG_CALL_S = 1.0
 
@@ -146,4 +147,45 @@ def time_call(
             break
     return TimingStats(
         median=statistics.median(samples), min=min(samples), all=tuple(samples), number=number, warmup=warmup
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class SampledTiming:
+    """What :func:`sample_call` measured: median and min seconds over ``samples`` calls."""
+
+    median: float
+    min: float
+    samples: int
+
+
+def sample_call(config: Any, fn: Callable[..., Any], args: tuple, first_s: float) -> SampledTiming:
+    """Time ``fn(*args)`` within a benchmark's budget (``config``: a ``BenchConfig``).
+
+    Short calls go through :func:`time_call` (``config.repeats`` samples, ``config.warmup - 1``
+    warm-ups: the caller has made one call already); for a call longer than a second, that first
+    call (``first_s`` seconds) is the first sample and more are taken only within
+    ``config.max_row_s``."""
+    if first_s <= _LONG_CALL_S:
+        st = time_call(fn, *args, repeats=config.repeats, warmup=max(config.warmup - 1, 0),
+                       max_total_s=config.max_row_s)
+        return SampledTiming(st.median, st.min, st.repeats)
+    samples = [first_s]
+    while len(samples) < config.repeats and sum(samples) + samples[-1] <= config.max_row_s:
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        samples.append(time.perf_counter() - t0)
+    return SampledTiming(statistics.median(samples), min(samples), len(samples))
+
+
+def load_note(name: str, start: float, load0: tuple | None) -> str | None:
+    """The closing note of a benchmark's report: its wall time since ``start`` (``perf_counter``)
+    and the 1-minute load average at the start (``load0``, from ``os.getloadavg``) and now."""
+    if load0 is None:
+        return None
+    load1 = os.getloadavg()
+    return (
+        f"The {name} benchmark took {time.perf_counter() - start:.0f} s; 1-minute load average {load0[0]:.1f} at the "
+        f"start and {load1[0]:.1f} at the end on {os.cpu_count()} logical cores (a load above the core count "
+        "means other processes shared the CPU and inflated every time here)."
     )

@@ -5,7 +5,7 @@ Every algorithm is a pure function that solves one instance; batch with ``jax.vm
 
 from solvers import shard_batch as shard_batch
 
-from . import bvh as bvh, character as character, contact as contact, control as control, joints as joints, physics as physics, rigid as rigid, rotations as rotations
+from . import balance as balance, bvh as bvh, character as character, contact as contact, control as control, joints as joints, physics as physics, rigid as rigid, rotations as rotations
 from ._errors import BVHParseError as BVHParseError, JaxanimError as JaxanimError
 from .bvh import read_bvh as read_bvh, write_bvh as write_bvh
 from .default_clip import default_clip_path as default_clip_path, make_default_clip as make_default_clip

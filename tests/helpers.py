@@ -63,3 +63,16 @@ def shared_clip(stem: str):
 def batched_fk():
     """``jit(vmap(forward_kinematics))`` over frames, shared by every test (compiled per structure)."""
     return jax.jit(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)))
+
+
+def quick_bench_config(**kw):
+    """A benchmark config for smoke tests: batch 2, one sample, half a second per row."""
+    from benchmarks import BenchConfig
+
+    return BenchConfig.make_quick(verbose=False, batches=(2,), repeats=1, warmup=0, max_row_s=0.5, loop_cap=2, **kw)
+
+
+def bench_rows(tables, name: str):
+    """The table called ``name`` and its rows by ``(implementation, batch)``."""
+    (table,) = [t for t in tables if t.name == name]
+    return table, {(r.implementation, r.batch): r for r in table.rows}

@@ -13,24 +13,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from benchmarks import REGISTRY, BenchConfig
+from benchmarks import REGISTRY
 from benchmarks.oc import OCSizes, initial_states, make_dare_systems, riccati_residual, run_oc
 from benchmarks.report import render_table
+
+from .helpers import bench_rows, quick_bench_config
 
 _TINY = OCSizes(
     unicycle_T=20, lqr_n=4, lqr_m=2, lqr_T=10, lqr_methods=(), dare_n=3, dare_m=2, dare_scipy_cap=4,
     swing_problems=("pendulum",), swing_methods=("ilqr",), swing_fixed=False, swing_T=40,
 )
 _UNICYCLE_T20_COST = 249.56089793082  # ../shared/data/ddp and solvers.problems.unicycle's docstring
-
-
-def _config(**kw) -> BenchConfig:
-    return BenchConfig.make_quick(verbose=False, batches=(2,), repeats=1, warmup=0, max_row_s=0.5, loop_cap=2, **kw)
-
-
-def _rows(tables, name):
-    (table,) = [t for t in tables if t.name == name]
-    return table, {(r.implementation, r.batch): r for r in table.rows}
 
 
 def test_registered():
@@ -41,60 +34,60 @@ def test_registered():
 def test_reduced_run_without_crocoddyl(monkeypatch):
     """jaxanim and scipy rows run and are accurate; every Crocoddyl row is skipped with the reason."""
     monkeypatch.setitem(sys.modules, "crocoddyl", None)  # import crocoddyl -> ImportError
-    config = _config(only=("jaxanim ilqr", "jaxanim lqr", "jaxanim dare", "scipy*", "crocoddyl solverddp"))
+    config = quick_bench_config(only=("jaxanim ilqr", "jaxanim lqr", "jaxanim dare", "scipy*", "crocoddyl solverddp"))
     tables = run_oc(config, _TINY)
     assert [t.name for t in tables] == ["oc-unicycle", "oc-lqr", "oc-dare", "oc-pendulum", "oc-compile"]
     text = "\n".join(render_table(t) for t in tables)
     assert "failed:" not in text
 
-    _, uni = _rows(tables, "oc-unicycle")
+    _, uni = bench_rows(tables, "oc-unicycle")
     row = uni[("jaxanim ilqr", 1)]
     assert row.success == 1.0 and row.compile_s > 0 and row.time_median_s > 0
     assert f"cost {_UNICYCLE_T20_COST:.9f}" in row.note, row.note
     skipped = uni[("Crocoddyl SolverDDP", None)]
     assert skipped.skipped.startswith("cannot import crocoddyl"), skipped.skipped
 
-    _, lqr = _rows(tables, "oc-lqr")
+    _, lqr = bench_rows(tables, "oc-lqr")
     assert lqr[("jaxanim lqr", 1)].accuracy == "reference"
     assert lqr[("jaxanim lqr", 1)].success == 1.0
 
-    _, dare = _rows(tables, "oc-dare")
+    _, dare = bench_rows(tables, "oc-dare")
     scipy_row = dare[("scipy solve_discrete_are (loop)", 2)]
     assert scipy_row.chars_per_call == 2 and scipy_row.success == 1.0
     dP, res = (float(x) for x in dare[("jaxanim dare", 2)].accuracy.split(" / "))
     assert dP < 1e-10 and res < 1e-10 and dare[("jaxanim dare", 2)].success == 1.0
 
-    _, pend = _rows(tables, "oc-pendulum")
+    _, pend = bench_rows(tables, "oc-pendulum")
     row = pend[("jaxanim ilqr", 2)]
     assert row.success == 1.0 and row.accuracy == "n/a (no Crocoddyl)"
     assert pend[("Crocoddyl SolverDDP", None)].skipped.startswith("cannot import crocoddyl")
 
-    comp, crows = _rows(tables, "oc-compile")
+    comp, crows = bench_rows(tables, "oc-compile")
     assert len(crows) == 4 and all(r.compile_s > 0 for r in comp.rows)  # unicycle, lqr, dare, pendulum
     assert any(n.startswith("Target: iLQR / DDP compile") for n in comp.notes)
 
 
-def test_reduced_crocoddyl_rows():
+def test_reduced_crocoddylbench_rows():
     """Crocoddyl rows alone: the unicycle optimum, the LQ cost convention, a pendulum loop."""
     pytest.importorskip("crocoddyl")
-    config = _config(only=("crocoddyl*",))
+    config = quick_bench_config(only=("crocoddyl*",))
     tables = run_oc(config, _TINY, tables=("unicycle", "lqr", "swing_up"))
     text = "\n".join(render_table(t) for t in tables)
     assert "failed:" not in text and "skipped" not in text
 
-    _, uni = _rows(tables, "oc-unicycle")
+    _, uni = bench_rows(tables, "oc-unicycle")
     for name in ("SolverDDP", "SolverFDDP", "SolverDDP (Python model)"):
         row = uni[(f"Crocoddyl {name}", 1)]
         assert f"cost {_UNICYCLE_T20_COST:.9f}" in row.note, (name, row.note)
         assert row.accuracy < 1e-12
     assert uni[("Crocoddyl SolverBoxDDP", 1)].success == 1.0
 
-    lqr, rows = _rows(tables, "oc-lqr")
+    lqr, rows = bench_rows(tables, "oc-lqr")
     rel, du = (float(x) for x in rows[("Crocoddyl SolverDDP", 1)].accuracy.split(" / "))
     assert rel < 1e-9 and du < 1e-7
     assert any("the same problem" in n for n in lqr.notes), lqr.notes
 
-    _, pend = _rows(tables, "oc-pendulum")
+    _, pend = bench_rows(tables, "oc-pendulum")
     row = pend[("Crocoddyl SolverDDP", 2)]
     assert row.chars_per_call >= 2 and row.accuracy == "reference" and row.success == 1.0
 

@@ -12,22 +12,15 @@ import pathlib
 import numpy as np
 import pytest
 
-from benchmarks import REGISTRY, BenchConfig, default_data_dir
+from benchmarks import REGISTRY, default_data_dir
 from benchmarks.peers import PeerUnavailable
 from benchmarks.physics import CLIP, PhysicsSizes, run_physics
 from benchmarks.report import render_table
 
+from .helpers import bench_rows, quick_bench_config
+
 _TINY = PhysicsSizes(batches=(2,), steps_per_call=2, mjx_steps=1, contact_models=("complementarity",),
                      stand_seconds=0.0, pendulum_seconds=0.05, pendulum_dts=(1 / 600,))
-
-
-def _config(**kw) -> BenchConfig:
-    return BenchConfig.make_quick(verbose=False, batches=(2,), repeats=1, warmup=0, max_row_s=0.5, loop_cap=2, **kw)
-
-
-def _rows(tables, name):
-    (table,) = [t for t in tables if t.name == name]
-    return table, {(r.implementation, r.batch): r for r in table.rows}
 
 
 def test_registered():
@@ -46,12 +39,12 @@ def test_reduced_run(monkeypatch):
         raise PeerUnavailable("cannot import mujoco.mjx: blocked by the test")
 
     monkeypatch.setattr(mujoco_physics, "load_mjx", no_mjx)
-    tables = run_physics(_config(), _TINY, tables=("throughput", "pendulum"))
+    tables = run_physics(quick_bench_config(), _TINY, tables=("throughput", "pendulum"))
     assert [t.name for t in tables] == ["physics", "physics-pendulum"]
     text = "\n".join(render_table(t) for t in tables)
     assert "failed:" not in text, text
 
-    table, rows = _rows(tables, "physics")
+    table, rows = bench_rows(tables, "physics")
     assert rows[("MuJoCo C mj_step (Python loop)", 2)].accuracy == "reference"
     assert rows[("MuJoCo C mj_step (Python loop)", 2)].chars_per_call == 2 * 2  # characters x steps
     assert rows[("MuJoCo C rollout.rollout", 2)].accuracy < 1e-12  # the same C code
@@ -62,14 +55,14 @@ def test_reduced_run(monkeypatch):
     assert any(n.startswith("Target: rollout compile") for n in table.notes)
     assert any("mujoco" in n for n in table.notes)
 
-    _, pend = _rows(tables, "physics-pendulum")
+    _, pend = bench_rows(tables, "physics-pendulum")
     mj, ja = pend[("MuJoCo C mj_step (dt 1/600)", 1)], pend[("jaxanim rollout (dt 1/600)", 1)]
     assert mj.accuracy < 1e-3 and ja.accuracy < 1e-3 and ja.success == 1.0
     assert "joint separation" in ja.note
 
 
 def test_missing_data_is_skipped(tmp_path: pathlib.Path):
-    tables = run_physics(_config(data_dir=tmp_path), _TINY, tables=("throughput", "standing"))
+    tables = run_physics(quick_bench_config(data_dir=tmp_path), _TINY, tables=("throughput", "standing"))
     assert [t.name for t in tables] == ["physics", "physics-standing"]
     assert all(t.skipped and "not found" in t.skipped for t in tables)
     assert "**skipped:**" in render_table(tables[0])
