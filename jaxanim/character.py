@@ -127,6 +127,7 @@ def build_character(
     ground: Ground | None = None,
     erp: float = 0.5,
     cfm: float = 1e-10,
+    scan_levels: bool = False,
 ) -> tuple[Character, BodyState]:
     """Build the character and its state at a pose (default: the rest pose).
 
@@ -144,7 +145,7 @@ def build_character(
         sole_fit: metres; soles less than this above the lowest one in the build pose are
             deepened to reach its level (0: no fitting).
         ground: the ground contact (default none; :func:`jaxanim.contact.make_ground`).
-        erp, cfm: as for :func:`jaxanim.physics.make_model`.
+        erp, cfm, scan_levels: as for :func:`jaxanim.physics.make_model`.
 
     Returns:
         ``(character, state)``: the :class:`Character` and the bodies' state at the pose, at rest.
@@ -262,7 +263,7 @@ def build_character(
         parent = root if b in top else joint_body[skeleton.parents[j]]
         specs.append(dict(name=skeleton.names[j], type="ball", parent=int(parent), child=int(b), anchor=p_world[j]))
     joints: Joints = make_joints(bodies, state, specs)
-    model = make_model(bodies, joints, ground=ground, erp=erp, cfm=cfm)
+    model = make_model(bodies, joints, ground=ground, erp=erp, cfm=cfm, scan_levels=scan_levels)
     return eqx.tree_at(lambda c: c.model, char, model, is_leaf=lambda x: x is None), state
 
 
