@@ -192,92 +192,84 @@ def _tree_solve(tree, M, p, Jp, Jc, b, C, scan_levels: bool = False):
     levels, world, free, parent, child = tree
     Mhat, phat = M, p
     saved = []
-
-    def eliminate(js, c):
-        Jc_ = Jc[js]
-        Minv = _spd_inverse(Mhat[c])
-        X = _bmm(Minv, jnp.swapaxes(Jc_, -1, -2))  # M^^{-1} J_c'  [n, 6, k]
-        y = _bmm(Minv, phat[c])  # M^^{-1} p^  [n, 6, m]
-        S = _bmm(Jc_, X) + jax.vmap(jnp.diag)(C[js])
-        r = b[js] - _bmm(Jc_, y)
-        return X, y, _spd_inverse(S), r
-
     for js in reversed(levels):
         c, pa = child[js], parent[js]
-        X, y, Sinv, r = eliminate(js, c)
-        G = _bmm(Sinv, Jp[js])  # S^{-1} J_p  [n, k, 6]
-        Mhat = Mhat.at[pa].add(_bmm(jnp.swapaxes(Jp[js], -1, -2), G))
-        phat = phat.at[pa].add(_bmm(jnp.swapaxes(G, -1, -2), r))
+        X, y, Sinv, r = _eliminate(Mhat[c], phat[c], Jc[js], C[js], b[js])
+        Mhat, phat = _fold(Mhat, phat, pa, Jp[js], Sinv, r)
         saved.append((js, c, pa, X, y, Sinv, r))
-    V = jnp.zeros_like(p)
-    if free.size:
-        V = V.at[free].set(_bmm(_spd_inverse(Mhat[free]), phat[free]))
-    if world.size:
-        c = child[world]
-        X, y, Sinv, r = eliminate(world, c)
-        V = V.at[c].set(y + _bmm(X, _bmm(Sinv, r)))
+    V = _roots(tree, Mhat, phat, Jc, C, b)
     for js, c, pa, X, y, Sinv, r in reversed(saved):
-        lam = _bmm(Sinv, r - _bmm(Jp[js], V[pa]))
-        V = V.at[c].set(y + _bmm(X, lam))
+        V = _back_substitute(V, c, pa, Jp[js], X, y, Sinv, r)
     return V
 
 
-def _tree_solve_scan(tree, M, p, Jp, Jc, b, C):
-    """:func:`_tree_solve` with the depth levels in a ``lax.scan``."""
-    levels, world, free, parent, child = tree
-    B, J = M.shape[0], Jp.shape[0]
+def _eliminate(Mhat_c, phat_c, Jc, C, b):
+    """A level's joints given their children's articulated inertias and momenta: ``(X = M^^{-1}
+    J_c' [n, 6, k], y = M^^{-1} p^ [n, 6, m], S^{-1} [n, k, k], r = b - J_c y [n, k, m])``."""
+    Minv = _spd_inverse(Mhat_c)
+    X = _bmm(Minv, jnp.swapaxes(Jc, -1, -2))
+    y = _bmm(Minv, phat_c)
+    S = _bmm(Jc, X) + jax.vmap(jnp.diag)(C)
+    return X, y, _spd_inverse(S), b - _bmm(Jc, y)
 
-    def eliminate(Mhat, phat, js, c):
-        Jc_ = Jc[js]
-        Minv = _spd_inverse(Mhat[c])
-        X = _bmm(Minv, jnp.swapaxes(Jc_, -1, -2))  # M^^{-1} J_c'  [n, 6, k]
-        y = _bmm(Minv, phat[c])  # M^^{-1} p^  [n, 6, m]
-        S = _bmm(Jc_, X) + jax.vmap(jnp.diag)(C[js])
-        r = b[js] - _bmm(Jc_, y)
-        return X, y, _spd_inverse(S), r
 
-    if levels:
-        # The depth levels as one scan (one compiled body, not one per level): levels padded to
-        # the widest with a dummy joint J (no rows: J = 0, C = 1) between dummy bodies B.
-        Jp = jnp.concatenate([Jp, jnp.zeros_like(Jp[:1])])
-        Jc = jnp.concatenate([Jc, jnp.zeros_like(Jc[:1])])
-        b = jnp.concatenate([b, jnp.zeros_like(b[:1])])
-        C = jnp.concatenate([C, jnp.ones_like(C[:1])])
-        width = max(js.size for js in levels)
-        pad = lambda a, v: np.concatenate([a, np.full(width - a.size, v)])  # noqa: E731
-        js_all = np.stack([pad(js, J) for js in levels])  # [D, width], shallowest first
-        c_all = np.stack([pad(child[js], B) for js in levels])
-        pa_all = np.stack([pad(parent[js], B) for js in levels])
-        Mhat = jnp.concatenate([M, jnp.eye(6, dtype=M.dtype)[None]])
-        phat = jnp.concatenate([p, jnp.zeros_like(p[:1])])
+def _fold(Mhat, phat, pa, Jp, Sinv, r):
+    """Add a level's joints to their parents: ``M^_p += J_p' S^{-1} J_p``, ``p^_p += J_p' S^{-1} r``."""
+    G = _bmm(Sinv, Jp)  # S^{-1} J_p  [n, k, 6]
+    return (Mhat.at[pa].add(_bmm(jnp.swapaxes(Jp, -1, -2), G)),
+            phat.at[pa].add(_bmm(jnp.swapaxes(G, -1, -2), r)))
 
-        def up(carry, level):
-            Mhat, phat = carry
-            js, c, pa = level
-            X, y, Sinv, r = eliminate(Mhat, phat, js, c)
-            G = _bmm(Sinv, Jp[js])  # S^{-1} J_p  [n, k, 6]
-            Mhat = Mhat.at[pa].add(_bmm(jnp.swapaxes(Jp[js], -1, -2), G))
-            phat = phat.at[pa].add(_bmm(jnp.swapaxes(G, -1, -2), r))
-            return (Mhat, phat), (X, y, Sinv, r)
 
-        (Mhat, phat), saved = jax.lax.scan(up, (Mhat, phat), (js_all, c_all, pa_all), reverse=True)
-    else:
-        Mhat, phat = jnp.concatenate([M, jnp.eye(6, dtype=M.dtype)[None]]), jnp.concatenate([p, p[:1] * 0])
+def _roots(tree, Mhat, phat, Jc, C, b):
+    """Velocities of the free roots (``M^^{-1} p^``) and of the bodies jointed to the world."""
+    _, world, free, _, child = tree
     V = jnp.zeros_like(phat)
     if free.size:
         V = V.at[free].set(_bmm(_spd_inverse(Mhat[free]), phat[free]))
     if world.size:
         c = child[world]
-        X, y, Sinv, r = eliminate(Mhat, phat, world, c)
+        X, y, Sinv, r = _eliminate(Mhat[c], phat[c], Jc[world], C[world], b[world])
         V = V.at[c].set(y + _bmm(X, _bmm(Sinv, r)))
-    if levels:
+    return V
 
-        def down(V, level):
-            (js, c, pa), (X, y, Sinv, r) = level
-            lam = _bmm(Sinv, r - _bmm(Jp[js], V[pa]))
-            return V.at[c].set(y + _bmm(X, lam)), None
 
-        V, _ = jax.lax.scan(down, V, ((js_all, c_all, pa_all), saved))
+def _back_substitute(V, c, pa, Jp, X, y, Sinv, r):
+    """A level's impulses ``lambda = S^{-1} (r - J_p V_p)`` and child velocities ``y + X lambda``."""
+    lam = _bmm(Sinv, r - _bmm(Jp, V[pa]))
+    return V.at[c].set(y + _bmm(X, lam))
+
+
+def _tree_solve_scan(tree, M, p, Jp, Jc, b, C):
+    """:func:`_tree_solve` with the depth levels in a ``lax.scan``: levels padded to the widest with
+    a dummy joint ``J`` (no rows: ``J = 0``, ``C = 1``) between dummy bodies ``B``."""
+    levels, _, _, parent, child = tree
+    B, J = M.shape[0], Jp.shape[0]
+    Mhat = jnp.concatenate([M, jnp.eye(6, dtype=M.dtype)[None]])
+    phat = jnp.concatenate([p, jnp.zeros_like(p[:1])])
+    if not levels:
+        return _roots(tree, Mhat, phat, Jc, C, b)[:B]
+    Jp = jnp.concatenate([Jp, jnp.zeros_like(Jp[:1])])
+    Jc = jnp.concatenate([Jc, jnp.zeros_like(Jc[:1])])
+    b = jnp.concatenate([b, jnp.zeros_like(b[:1])])
+    C = jnp.concatenate([C, jnp.ones_like(C[:1])])
+    width = max(js.size for js in levels)
+    pad = lambda a, v: np.concatenate([a, np.full(width - a.size, v)])  # noqa: E731
+    xs = (np.stack([pad(js, J) for js in levels]), np.stack([pad(child[js], B) for js in levels]),
+          np.stack([pad(parent[js], B) for js in levels]))  # [D, width] each, shallowest first
+
+    def up(carry, level):
+        Mhat, phat = carry
+        js, c, pa = level
+        X, y, Sinv, r = _eliminate(Mhat[c], phat[c], Jc[js], C[js], b[js])
+        return _fold(Mhat, phat, pa, Jp[js], Sinv, r), (X, y, Sinv, r)
+
+    (Mhat, phat), saved = jax.lax.scan(up, (Mhat, phat), xs, reverse=True)
+
+    def down(V, level):
+        (js, c, pa), (X, y, Sinv, r) = level
+        return _back_substitute(V, c, pa, Jp[js], X, y, Sinv, r), None
+
+    V, _ = jax.lax.scan(down, _roots(tree, Mhat, phat, Jc, C, b), (xs, saved))
     return V[:B]
 
 
