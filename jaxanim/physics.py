@@ -358,15 +358,13 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=
         Jp = Jc = jnp.zeros((0, 1, 6), dtype)
         b, C = jnp.zeros((0, 1), dtype), jnp.ones((0, 1), dtype)
     tree = _tree(model.joints.parent, model.joints.child, B)
-    # One-sided rows: contacts (normal, t1, t2 per point) then joint limits, each row on up to two
-    # bodies (owner_a, row_a) + (owner_b, row_b).
-    owner_a, rows_a, owner_b, rows_b, target = [], [], [], [], []
+    # One-sided rows: contacts (normal, t1, t2 per point) then joint limits, each on body owner_a
+    # (row_a); a limit row also on its parent body owner_b (row_b; zero for a joint to the world).
+    owner_a, rows_a, target = [], [], []
     if contact:
         owner, rows, tc = contact_rows(model.ground, model.bodies, state, h)
         owner_a.append(owner)
         rows_a.append(rows)
-        owner_b.append(owner)
-        rows_b.append(jnp.zeros_like(rows))
         target.append(tc)
     lj, axes, phi = limit_rows(model.joints, state)
     L = lj.size
@@ -376,23 +374,26 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd=
         chi = np.asarray(model.joints.child)[lj]
         owner_a.append(jnp.asarray(chi))
         rows_a.append(jnp.concatenate([zero3, axes], -1))
-        owner_b.append(jnp.asarray(np.where(par >= 0, par, chi)))
-        rows_b.append(jnp.concatenate([zero3, jnp.where(jnp.asarray(par >= 0)[:, None], -axes, 0.0)], -1))
+        owner_b = jnp.asarray(np.where(par >= 0, par, chi))
+        rows_b = jnp.concatenate([zero3, jnp.where(jnp.asarray(par >= 0)[:, None], -axes, 0.0)], -1)
         target.append(jnp.where(phi > 0, -phi / h, (model.erp / h) * (-phi)))
     if not target:
         return _split(_tree_solve(tree, M, p[..., None], Jp, Jc, b[..., None], C, model.scan_levels)[..., 0])
-    owner_a, owner_b = jnp.concatenate(owner_a), jnp.concatenate(owner_b)
-    rows_a, rows_b, target = jnp.concatenate(rows_a), jnp.concatenate(rows_b), jnp.concatenate(target)
+    owner_a, rows_a, target = jnp.concatenate(owner_a), jnp.concatenate(rows_a), jnp.concatenate(target)
     U = target.shape[0]
-    u = np.arange(U)
-    cols = jnp.zeros((B, 6, U), dtype).at[owner_a, :, u].add(rows_a).at[owner_b, :, u].add(rows_b)  # J_u'
+    cols = jnp.zeros((B, 6, U), dtype).at[owner_a, :, np.arange(U)].add(rows_a)  # J_u'
+    if L:
+        cols = cols.at[owner_b, :, np.arange(U - L, U)].add(rows_b)
     P = jnp.concatenate([p[..., None], cols], axis=-1)
     bb = jnp.concatenate([b[..., None], jnp.zeros(b.shape + (U,), dtype)], axis=-1)
     Vall = _tree_solve(tree, M, P, Jp, Jc, bb, C, model.scan_levels)
     V0, Y = Vall[..., 0], Vall[..., 1:]  # Y = H^{-1} J_u'  [B, 6, U]
-    A = jnp.einsum("uj,ujv->uv", rows_a, Y[owner_a]) + jnp.einsum("uj,ujv->uv", rows_b, Y[owner_b])
+    A = jnp.einsum("uj,ujv->uv", rows_a, Y[owner_a])
+    rhs = target - jnp.einsum("uj,uj->u", rows_a, V0[owner_a])
+    if L:
+        A = A.at[U - L:].add(jnp.einsum("uj,ujv->uv", rows_b, Y[owner_b]))
+        rhs = rhs.at[U - L:].add(-jnp.einsum("uj,uj->u", rows_b, V0[owner_b]))
     A = 0.5 * (A + A.T) + model.cfm * jnp.eye(U, dtype=dtype)
-    rhs = target - jnp.einsum("uj,uj->u", rows_a, V0[owner_a]) - jnp.einsum("uj,uj->u", rows_b, V0[owner_b])
     lam = projected_gauss_seidel(A, rhs, model.ground.friction, model.ground.iterations, num_single=L)
     return _split(V0 + jnp.einsum("bjv,v->bj", Y, lam))
 
