@@ -52,6 +52,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -59,7 +60,7 @@ from jaxtyping import Array, ArrayLike, Float
 from ._errors import JaxanimError
 from . import rotations as rot
 from .character import Character, character_state, spd_targets
-from .contact import contact_points
+from .contact import _geometry
 from .fk import forward_kinematics, global_to_local
 from .joints import Joints
 from .rigid import BodyState, RigidBodies
@@ -302,10 +303,8 @@ def balance_controller(
 
 def _heights(character: Character, state: BodyState) -> tuple[np.ndarray, np.ndarray]:
     """``(body [K], height [K])``: every contact point's owner and signed distance to the ground plane."""
-    body, local, radius = contact_points(character.model.bodies)
-    ground = character.model.ground
-    p = state.position[body] + rot.quat_apply(state.orientation[body], local)
-    return body, np.asarray(p @ ground.normal.astype(p.dtype) - ground.offset - radius)
+    body, _, phi, _ = _geometry(character.model.ground, character.model.bodies, state)
+    return body, np.asarray(phi)
 
 
 def standing_pose(
@@ -442,6 +441,5 @@ def stood(
     bool; ``vmap`` it over a batch of rollouts."""
     up = jnp.asarray(_up(character.model.bodies), initial.position.dtype)
     c0, _ = center_of_mass(character.model.bodies, initial)
-    m = character.model.bodies.mass / jnp.sum(character.model.bodies.mass)
-    heights = jnp.einsum("b,tbi,i->t", m, trajectory.position, up)
+    heights = jax.vmap(lambda s: center_of_mass(character.model.bodies, s)[0])(trajectory) @ up
     return jnp.all(heights >= (1.0 - height_tolerance) * (c0 @ up))

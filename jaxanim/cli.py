@@ -387,6 +387,7 @@ def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) ->
     """Build the character, compile the rollout and the pose / CoM / error maps, run them."""
     from . import character
     from .contact import make_ground
+    from .balance import center_of_mass
     from .control import joint_errors
     from .physics import rollout
 
@@ -399,7 +400,6 @@ def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) ->
                                                 root_force=not args.no_root_force)
     jax.block_until_ready(gains)
     setup_seconds = time.perf_counter() - t0
-    mass = char.model.bodies.mass
 
     def simulate(state0, gains, reference):
         run = rollout(char.model, state0, plan.dt, plan.steps, record_every=plan.k, controller=ctrl,
@@ -410,7 +410,7 @@ def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) ->
             reference.rotations, reference.translations)
         err = jax.vmap(lambda s, tg: jnp.mean(jnp.linalg.norm(joint_errors(char.model.joints, s, tg)[0], axis=-1)))(
             traj, targets)
-        com_y = jnp.einsum("b,fb->f", mass, traj.position[:, :, 1]) / jnp.sum(mass)
+        com_y = jax.vmap(lambda s: center_of_mass(char.model.bodies, s)[0][1])(traj)
         return q, t, com_y, err, run.result, run.num_steps
 
     call_args = (state0, gains, reference)
