@@ -760,17 +760,18 @@ def _ik_residual_us(us: Callable, problems: ProblemSet, b: int) -> float | str:
     """µs per problem of the IK residual + Jacobian (a private function: the reason if it fails)."""
     try:
         from jaxanim import ik
+        from jaxanim.ik import _solve as ik_impl
 
         skel = problems.skeleton
         targets = problems.targets(jnp.float64, b)
         one = tuple(ik.Target(t.site, t.position[0], t.orientation[0]) for t in targets)
-        layout = ik._layout(skel, one, None, (), "free")
+        layout = ik_impl._layout(skel, one, None, (), "free")
         q_ref = jnp.asarray(problems.start_rotations)
         t_ref = jnp.asarray(problems.start_translations)
         ys = jnp.asarray(np.random.default_rng(2).normal(size=(b, 3 + 3 * skel.num_joints)) * 0.3)
 
         def res_jac(y, tg):  # regularization=0: no regulariser rows (reg_w=None), as in the rows above
-            return ik._residual_and_jacobian(skel, layout, tg, q_ref, t_ref, None, y, None)[:2]
+            return ik_impl._residual_and_jacobian(skel, layout, tg, q_ref, t_ref, None, y, None)[:2]
 
         return us(res_jac, ys, targets)
     except Exception as exc:  # informative only
@@ -821,7 +822,7 @@ def _profile_notes(config: BenchConfig, problems: ProblemSet, b: int, records: d
     rec = _rec(records, _LM_ADAPTIVE, "float64", b)
     line = f"Profile, own LM at batch {b}, float64 (µs per problem; each part jitted and vmapped alone): "
     if isinstance(t_res, float):
-        line += (f"the IK residual and its {m}x{n} Jacobian (jaxanim.ik._residual_and_jacobian: FK, geometric "
+        line += (f"the IK residual and its {m}x{n} Jacobian (jaxanim.ik._solve._residual_and_jacobian: FK, geometric "
                  f"Jacobian, SO(3) left Jacobians, assembly) {t_res:.0f} µs, of which FK + the 5-site geometric "
                  f"Jacobian (jaxanim.jacobian) {t_jac:.0f} µs; ")
     else:

@@ -96,7 +96,7 @@ class _Problem(eqx.Module):
     """``fn``/``jac`` and the box of one solve (built inside the jitted function)."""
 
     fn: ResidualFn = eqx.field(static=True)
-    jac: JacobianFn | None = eqx.field(static=True)
+    jac: JacobianFn | bool | None = eqx.field(static=True)  # True: fn returns (r, J)
     lower: Float[Array, " n"] | None
     upper: Float[Array, " n"] | None
     m: int = eqx.field(static=True)
@@ -107,10 +107,16 @@ class _Problem(eqx.Module):
         return self.lower is not None
 
     def residual(self, y: Float[Array, " n"], args: PyTree) -> Float[Array, " m"]:
+        if self.jac is True:  # the Jacobian is dead code here: XLA removes it
+            return jnp.asarray(self.fn(y, args)[0]).astype(y.dtype)
         return jnp.asarray(self.fn(y, args)).astype(y.dtype)
 
     def linearise(self, y: Float[Array, " n"], args: PyTree) -> tuple[Float[Array, " m"], Float[Array, "m n"]]:
-        """``(r(y), J(y))``: the user's ``jac`` if given, else forward (``m >= n``) or reverse mode."""
+        """``(r(y), J(y))``: one call of ``fn`` when it returns both (``jac=True``), the user's
+        ``jac`` if given, else forward (``m >= n``) or reverse mode."""
+        if self.jac is True:
+            r, J = self.fn(y, args)
+            return jnp.asarray(r).astype(y.dtype), jnp.asarray(J).astype(y.dtype)
         if self.jac is not None:
             return self.residual(y, args), jnp.asarray(self.jac(y, args)).astype(y.dtype)
 
@@ -142,6 +148,10 @@ class _Problem(eqx.Module):
         fn, jac = self.fn, self.jac
         if jac is None:
             return fn
+        if jac is True:
+            fused = fn
+            fn = lambda y, args: fused(y, args)[0]  # noqa: E731
+            jac = lambda y, args: fused(y, args)[1]  # noqa: E731
 
         def wrapped(y, args):
             dyn, static = eqx.partition(args, eqx.is_array)
@@ -985,7 +995,7 @@ def least_squares(
     y0: Float[ArrayLike, " n"],
     args: PyTree = None,
     *,
-    jac: JacobianFn | None = None,
+    jac: JacobianFn | bool | None = None,
     bounds: tuple[Float[ArrayLike, " n"], Float[ArrayLike, " n"]] | None = None,
     stop: Callable[[Array, Array, PyTree], Bool[ArrayLike, ""]] | None = None,
     throw: bool = False,
@@ -1000,7 +1010,8 @@ def least_squares(
     it; array data belong in ``args``.
 
     Args:
-        fn: the residual function ``fn(y, args) -> r``, ``y`` of shape ``[n]``, ``r`` of shape ``[m]``.
+        fn: the residual function ``fn(y, args) -> r``, ``y`` of shape ``[n]``, ``r`` of shape ``[m]``
+            (with ``jac=True``: ``fn(y, args) -> (r, J)``).
         solver: :class:`GaussNewton`, :class:`LevenbergMarquardt`, :class:`GradientDescent`,
             :class:`OptimistixSolver` or :class:`JaxoptSolver`.
         y0: ``[n]`` the initial guess (integer input is converted to the default float dtype;
@@ -1008,7 +1019,8 @@ def least_squares(
         args: any pytree passed through to ``fn`` and ``jac``.
         jac: optional ``jac(y, args) -> J``, ``[m, n]``, ``J_ij = d r_i / d y_j``. Default:
             ``jax.jacfwd`` of ``fn`` when ``m >= n``, ``jax.jacrev`` otherwise. The backends get it
-            through a ``jax.custom_jvp`` on ``fn``.
+            through a ``jax.custom_jvp`` on ``fn``. ``jac=True`` (scipy's convention): ``fn``
+            returns the residual and its Jacobian together, and each linearisation calls it once.
         bounds: optional ``(lower, upper)``, each ``[n]`` (or a scalar), ``-inf``/``inf`` for free
             variables; own solvers only. Every iterate satisfies ``lower <= y <= upper`` exactly.
         stop: optional early-stop criterion ``stop(y, r, args) -> bool`` on an iterate and its
@@ -1077,13 +1089,18 @@ def least_squares(
 def _least_squares(fn, jac, solver, y0, args, lower, upper, stop, throw) -> Solution:
     n = y0.shape[0]
     out = eqx.filter_eval_shape(fn, y0, args)
+    if jac is True:
+        if not (isinstance(out, tuple) and len(out) == 2):
+            raise ValueError(f"fn: with jac=True, expected fn(y, args) to return (r, J), got {type(out).__name__}")
+        out, jout = out
     shape = getattr(out, "shape", None)
     if shape is None or len(shape) != 1:
         got = _fmt(shape) if shape is not None else type(out).__name__
         raise ValueError(f"fn: expected fn(y, args) to return residuals of shape (m,), got {got}")
     m = shape[0]
     if jac is not None:
-        jout = eqx.filter_eval_shape(jac, y0, args)
+        if jac is not True:
+            jout = eqx.filter_eval_shape(jac, y0, args)
         jshape = getattr(jout, "shape", None)
         if jshape is None or tuple(jshape) != (m, n):
             got = _fmt(jshape) if jshape is not None else type(jout).__name__

@@ -226,7 +226,7 @@ def test_entry_point_in_a_subprocess(tmp_path):
     bad.write_text(_BAD_BVH)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.run(
-        [sys.executable, "-m", "jaxanim.cli", "info", str(bad)],
+        [sys.executable, "-m", "jaxanim", "info", str(bad)],
         capture_output=True, text=True, cwd=tmp_path, env=env, timeout=120,
     )
     assert proc.returncode == 2, proc.stderr
@@ -244,7 +244,7 @@ def test_shipped_clip_equals_the_generator_output():
     generated = format_bvh(*make_default_clip())
     head_s, frames_s = shipped.split("MOTION\n")
     head_g, frames_g = generated.split("MOTION\n")
-    hint = "the shipped clip drifted from the generator: run `python -m jaxanim.default_clip`"
+    hint = "the shipped clip drifted from the generator: run `python -m jaxanim.skeleton._default_clip`"
     assert head_s == head_g, hint
     lines_s, lines_g = frames_s.splitlines(), frames_g.splitlines()
     assert lines_s[:2] == lines_g[:2] == ["Frames: 120", f"Frame Time: {1 / 30!r}"], hint

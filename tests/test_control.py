@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from jaxanim import JaxanimError, control, joints, physics, rigid
+from jaxanim.physics import _model as physics_impl
 from jaxanim import rotations as rot
 
 _KP, _KD = 200.0, 20.0
@@ -84,8 +85,8 @@ def _run_chain(dt, seconds, law, kp=300.0, kd=10.0):
     def body(s, _):
         if law == "pd":
             tau = control.pd_joint_torques(model.joints, s, targets, kp, kd)
-            return physics._step(model, s, zeros, zeros, tau, dt), None
-        return physics._step(model, s, zeros, zeros, zeros, dt, (targets, kp, kd)), None
+            return physics_impl._step(model, s, zeros, zeros, tau, dt), None
+        return physics_impl._step(model, s, zeros, zeros, zeros, dt, (targets, kp, kd)), None
 
     final = jax.jit(lambda s: jax.lax.scan(body, s, None, length=int(round(seconds / dt)))[0])(state)
     return model, final, targets

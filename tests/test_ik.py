@@ -12,6 +12,7 @@ import pytest
 import jaxanim
 import solvers
 from jaxanim import ik
+from jaxanim.ik import _solve as ik_impl
 from jaxanim import rotations as rot
 
 from .conftest import shared_data_dir
@@ -21,14 +22,14 @@ _TOL_REACH = 1e-6
 
 
 def _problem_fns(skel, targets, q, t, **kw):
-    layout = ik._layout(skel, targets, kw.get("pin"), kw.get("frozen", ()), kw.get("root_translation", "free"))
+    layout = ik_impl._layout(skel, targets, kw.get("pin"), kw.get("frozen", ()), kw.get("root_translation", "free"))
     pin_ref = None
     if layout.pin_idx is not None:
         pin_ref = jaxanim.forward_kinematics(skel, q, t).site_positions()[layout.pin_idx]
     reg_w = jnp.full(skel.num_joints, 1e-3)
 
     def both(y):
-        return ik._residual_and_jacobian(skel, layout, tuple(targets), q, t, pin_ref, y, reg_w)
+        return ik_impl._residual_and_jacobian(skel, layout, tuple(targets), q, t, pin_ref, y, reg_w)
 
     n = (3 if layout.free_root else 0) + 3 * len(layout.free_joints)
     return both, n

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 import jaxanim
 import solvers
 from jaxanim import ik
+from jaxanim.ik import _solve as ik_impl
 from jaxanim import rotations as rot
 from jaxanim.limits import EulerLimit, SwingTwistLimit, _charts, limit_violation
 
@@ -103,7 +104,7 @@ def _setup(skel, targets, q, t, **kw):
     base = dict(reference=None, pin=None, frozen=(), root_translation="free", regularization=1e-3,
                 joint_weights=None, limits=(), limit_mode="hard", limit_weight=1.0)
     base.update(kw)
-    return ik._setup(skel, targets, q, t, **base)
+    return ik_impl._setup(skel, targets, q, t, **base)
 
 
 @pytest.fixture(scope="module")

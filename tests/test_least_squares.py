@@ -422,6 +422,22 @@ def test_user_jacobian_equals_autodiff():
         assert_close(f"{name}: jac", q.jac(y, None), jax.jacfwd(lambda z: q.fn(z, None))(y), atol=1e-12)
 
 
+def _rosenbrock_fused(y, args):
+    return rosenbrock(y, args), rosenbrock_jac(y, args)
+
+
+@pytest.mark.parametrize("solver", [_solver_param("optx-lm"), _solver_param("lm")])
+def test_fused_residual_and_jacobian(solver):
+    """``jac=True``: ``fn`` returns ``(r, J)``; same iterates as a separate ``jac``."""
+    p = PROBLEMS["rosenbrock"]
+    split = least_squares(p.fn, SOLVERS[solver](), jnp.asarray(p.y0), jac=rosenbrock_jac)
+    fused = least_squares(_rosenbrock_fused, SOLVERS[solver](), jnp.asarray(p.y0), jac=True)
+    assert int(fused.stats["num_steps"]) == int(split.stats["num_steps"])
+    assert_close("value", fused.value, split.value, atol=1e-14)
+    with pytest.raises(ValueError, match=r"with jac=True, expected fn\(y, args\) to return \(r, J\)"):
+        least_squares(p.fn, SOLVERS[solver](), jnp.asarray(p.y0), jac=True)
+
+
 @pytest.mark.parametrize("solver", [_solver_param("optx-lm"), _solver_param("jaxopt-lm"), _solver_param("lm")])
 def test_backends_use_the_analytic_jacobian(solver):
     """``fn`` has no derivative (stop_gradient): only the user ``jac`` can make the solve succeed."""

@@ -36,8 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
 
 __all__ = [
     "BodyState",

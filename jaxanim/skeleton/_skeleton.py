@@ -23,8 +23,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._errors import JaxanimError, check_shape
-from ._types import Array, Float
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")

@@ -7,10 +7,10 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
-from ._types import Array, Float
-from .skeleton import Motion, Skeleton
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float
+from ._skeleton import Motion, Skeleton
 
 
 def resample_at(motion: Motion, frames: Float[Array, " n"]) -> Motion:

@@ -57,13 +57,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._errors import JaxanimError
-from . import rotations as rot
-from .character import Character, character_state, spd_targets
-from .contact import _geometry
-from .fk import forward_kinematics, global_to_local
-from .joints import Joints
-from .rigid import BodyState, RigidBodies
+from .._errors import JaxanimError
+from .. import rotations as rot
+from ._build import Character, character_state, spd_targets
+from ..physics._contact import _geometry
+from ..kinematics._fk import forward_kinematics, global_to_local
+from ..physics._joints import Joints
+from ..physics._bodies import BodyState, RigidBodies
 
 __all__ = [
     "balance_controller", "center_of_mass", "joint_anchors", "stance_leg_joints", "standing_pose", "stood",

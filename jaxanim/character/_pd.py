@@ -26,10 +26,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from . import rotations as rot
-from ._errors import JaxanimError
-from .joints import Joints
-from .rigid import BodyState
+from .. import rotations as rot
+from .._errors import JaxanimError
+from ..physics._joints import Joints, joint_errors
+from ..physics._bodies import BodyState
 
 __all__ = ["joint_errors", "pd_force", "pd_joint_torques", "stable_pd_force"]
 
@@ -65,22 +65,6 @@ def stable_pd_force(
         c = kp * h + kd
         return (kp * (target - x) - c * v) / (1 + h * c / m)
     raise JaxanimError(f"form: expected 'damping' or 'full', got {form!r}")
-
-
-def joint_errors(joints: Joints, state: BodyState, targets: Float[Array, "J 4"]) -> tuple[Array, Array]:
-    """Per joint ``(e [J, 3], omega_rel [J, 3])`` in the world frame: the rotation vector taking the
-    child's current orientation relative to its parent to ``targets`` (wxyz, ``q_p^{-1} q_c``),
-    and ``omega_c - omega_p``."""
-    par = np.asarray(joints.parent)
-    chi = np.asarray(joints.child)
-    world = jnp.asarray(par < 0)[:, None]
-    dtype = state.position.dtype
-    qp = jnp.where(world, jnp.array([1.0, 0.0, 0.0, 0.0], dtype), state.orientation[np.maximum(par, 0)])
-    wp = jnp.where(world, 0.0, state.angular_velocity[np.maximum(par, 0)])
-    qc = state.orientation[chi]
-    target_world = rot.quat_multiply(qp, targets)  # the child's target orientation
-    e = rot.quat_to_rotvec(rot.quat_canonical(rot.quat_multiply(target_world, rot.quat_conjugate(qc))))
-    return e, state.angular_velocity[chi] - wp
 
 
 def pd_joint_torques(

@@ -30,10 +30,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._errors import JaxanimError
-from .joints import _perpendiculars
-from .rigid import BodyState, RigidBodies
-from . import rotations as rot
+from .._errors import JaxanimError
+from ._bodies import BodyState, RigidBodies
+from .. import rotations as rot
 
 __all__ = ["CONTACT_MODELS", "Ground", "contact_points", "make_ground"]
 
@@ -178,7 +177,7 @@ def contact_rows(ground: Ground, bodies: RigidBodies, state: BodyState, h) -> tu
         owner, r, phi = owner[idx], r[idx], phi[idx]
     K = phi.shape[0]
     n = ground.normal
-    t1, t2 = (t[0] for t in _perpendiculars(n[None]))
+    t1, t2 = (t[0] for t in rot.perpendicular_basis(n[None]))
     dirs = jnp.stack([n, t1, t2])  # [3, 3]
     lin = jnp.broadcast_to(dirs[None], (K, 3, 3))
     ang = jnp.cross(r[:, None, :], lin)  # (r x d) . omega

@@ -38,14 +38,14 @@ import numpy as np
 
 import solvers
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
-from ._types import Array, Float
-from .fk import forward_kinematics
-from .jacobians import _jacobian_from_fk, _site_indices
-from .limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit, _charts, _resolve
-from .limits import limit_violation as limit_violation
-from .skeleton import Motion, Skeleton
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float
+from ..kinematics._fk import forward_kinematics
+from ..kinematics._jacobians import _jacobian_from_fk, _site_indices
+from ..kinematics._limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit, _charts, _resolve
+from ..kinematics._limits import limit_violation as limit_violation
+from ..skeleton._skeleton import Motion, Skeleton
 
 
 class Target(eqx.Module):
@@ -651,6 +651,3 @@ def _limits_from_json(skeleton: Skeleton, items) -> tuple:
             raise JaxanimError(f"{where}: expected numbers") from None
     return tuple(out)
 
-
-# the CCD baseline lives in its own module (it imports Target and IKSolution from here)
-from .ik_ccd import solve_ik_ccd as solve_ik_ccd  # noqa: E402

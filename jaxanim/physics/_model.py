@@ -43,12 +43,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
-from .contact import Ground, contact_rows, make_ground, penalty_loads, projected_gauss_seidel
-from .control import joint_errors
-from .joints import Joints, joint_rows, limit_rows
-from .rigid import BodyState, RigidBodies, _check_loads, _check_model, _free_velocities, _bmm, _integrate, _spd_inverse
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
+from ._contact import Ground, contact_rows, make_ground, penalty_loads, projected_gauss_seidel
+from ._joints import Joints, joint_errors, joint_rows, limit_rows
+from ._bodies import BodyState, RigidBodies, _check_loads, _check_model, _free_velocities, _bmm, _integrate, _spd_inverse
 
 __all__ = ["PhysicsModel", "Rollout", "SimResult", "joint_error", "make_model", "rollout", "step", "to_mjcf"]
 

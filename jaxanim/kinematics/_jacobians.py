@@ -24,11 +24,11 @@ from collections.abc import Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
-from ._types import Array, Float
-from .fk import _end_sites, _fk_levels, _prepare, _take
-from .skeleton import Skeleton
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float
+from ._fk import _end_sites, _fk_levels, _prepare, _take
+from ..skeleton._skeleton import Skeleton
 
 
 def _site_indices(skeleton: Skeleton, sites) -> tuple[int, ...]:

@@ -45,11 +45,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from . import rotations as rot
-from ._errors import JaxanimError
-from .rigid import BodyState, RigidBodies
+from .. import rotations as rot
+from .._errors import JaxanimError
+from ._bodies import BodyState, RigidBodies
 
-__all__ = ["JOINT_TYPES", "Joints", "joint_rows", "limit_rows", "make_joints"]
+__all__ = ["JOINT_TYPES", "Joints", "joint_errors", "joint_rows", "limit_rows", "make_joints"]
 
 JOINT_TYPES = ("ball", "hinge", "universal", "fixed")
 _ANGULAR_ROWS = {"ball": 0, "hinge": 2, "universal": 1, "fixed": 3}
@@ -244,14 +244,6 @@ def _range(name: str, value) -> tuple[float, float]:
     return float(v[0]), float(v[1])
 
 
-def _perpendiculars(n: Float[Array, "J 3"]) -> tuple[Array, Array]:
-    """Two unit vectors completing ``n`` to an orthonormal basis (per row)."""
-    helper = jnp.where(jnp.abs(n[:, :1]) < 0.9, jnp.array([[1.0, 0.0, 0.0]]), jnp.array([[0.0, 1.0, 0.0]]))
-    t1 = jnp.cross(n, helper.astype(n.dtype))
-    t1 = t1 / jnp.linalg.norm(t1, axis=-1, keepdims=True)
-    return t1, jnp.cross(n, t1)
-
-
 def joint_rows(joints: Joints, state: BodyState) -> tuple[Array, Array, Array]:
     """The constraint rows at ``state``: ``(J_parent [J, 6, 6], J_child [J, 6, 6], g [J, 6])``.
 
@@ -279,7 +271,7 @@ def joint_rows(joints: Joints, state: BodyState) -> tuple[Array, Array, Array]:
     # Angular rows of every type for every joint, then selected by the (static) type.
     n_p = rot.quat_apply(qp, joints.axis_parent)
     n_c = rot.quat_apply(qc, joints.axis_child)
-    t1, t2 = _perpendiculars(n_p)
+    t1, t2 = rot.perpendicular_basis(n_p)
     zero = jnp.zeros((Jn, 3), dtype)
     hinge_T = jnp.stack([t1, t2, zero], axis=1)  # [J, 3, 3]
     hinge_g = jnp.einsum("jki,ji->jk", hinge_T, jnp.cross(n_p, n_c))
@@ -328,7 +320,7 @@ def limit_rows(joints: Joints, state: BodyState) -> tuple[np.ndarray, Array, Arr
     cr = jnp.cross(n_p, n_c)
     sin = jnp.linalg.norm(cr, axis=-1)
     alpha = jnp.arctan2(sin, jnp.sum(n_p * n_c, axis=-1))
-    t1, _ = _perpendiculars(n_p)
+    t1, _ = rot.perpendicular_basis(n_p)
     s = jnp.where((sin > 1e-12)[:, None], cr / jnp.where(sin > 1e-12, sin, 1.0)[:, None], t1)
     bis = n_p + n_c
     bis = bis / jnp.maximum(jnp.linalg.norm(bis, axis=-1, keepdims=True), 1e-12)
@@ -351,3 +343,19 @@ def limit_rows(joints: Joints, state: BodyState) -> tuple[np.ndarray, Array, Arr
             axes += [-s[j], twist_axis[j]]
             phis += [swing_phi[j], range_phi[j]]
     return np.asarray(idx, int), jnp.stack(axes), jnp.stack(phis)
+
+
+def joint_errors(joints: Joints, state: BodyState, targets: Float[Array, "J 4"]) -> tuple[Array, Array]:
+    """Per joint ``(e [J, 3], omega_rel [J, 3])`` in the world frame: the rotation vector taking the
+    child's current orientation relative to its parent to ``targets`` (wxyz, ``q_p^{-1} q_c``),
+    and ``omega_c - omega_p``."""
+    par = np.asarray(joints.parent)
+    chi = np.asarray(joints.child)
+    world = jnp.asarray(par < 0)[:, None]
+    dtype = state.position.dtype
+    qp = jnp.where(world, jnp.array([1.0, 0.0, 0.0, 0.0], dtype), state.orientation[np.maximum(par, 0)])
+    wp = jnp.where(world, 0.0, state.angular_velocity[np.maximum(par, 0)])
+    qc = state.orientation[chi]
+    target_world = rot.quat_multiply(qp, targets)  # the child's target orientation
+    e = rot.quat_to_rotvec(rot.quat_canonical(rot.quat_multiply(target_world, rot.quat_conjugate(qc))))
+    return e, state.angular_velocity[chi] - wp

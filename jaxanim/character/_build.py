@@ -37,14 +37,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
-from .contact import Ground
-from .fk import forward_kinematics
-from .joints import Joints, make_joints
-from .physics import PhysicsModel, make_model, to_mjcf
-from .rigid import BodyState, RigidBodies, make_bodies, make_state, shape_mass_properties
-from .skeleton import Skeleton
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
+from ..physics._contact import Ground
+from ..kinematics._fk import forward_kinematics
+from ..physics._joints import Joints, make_joints
+from ..physics._model import PhysicsModel, make_model, to_mjcf
+from ..physics._bodies import BodyState, RigidBodies, make_bodies, make_state, shape_mass_properties
+from ..skeleton._skeleton import Skeleton
 
 __all__ = [
     "Character", "build_character", "character_pose", "character_state", "export_mjcf", "root_body", "spd_targets",

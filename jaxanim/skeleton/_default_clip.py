@@ -22,7 +22,7 @@ smooth fits to rounded textbook joint angles of level walking. Everything is com
 in float64 from closed-form curves, so the clip is deterministic.
 
 The shipped file ``jaxanim/data/walk.bvh`` is ``make_default_clip()`` written with
-:func:`jaxanim.write_bvh`; regenerate it with ``python -m jaxanim.default_clip``.
+:func:`jaxanim.write_bvh`; regenerate it with ``python -m jaxanim.skeleton._default_clip``.
 """
 
 from __future__ import annotations
@@ -38,9 +38,9 @@ import sys
 import jax
 import numpy as np
 
-from ._errors import JaxanimError
-from .bvh import channels_to_motion, write_bvh
-from .skeleton import Motion, Skeleton
+from .._errors import JaxanimError
+from ._bvh import channels_to_motion, write_bvh
+from ._skeleton import Motion, Skeleton
 
 __all__ = ["default_clip_channels", "default_clip_path", "default_skeleton", "make_default_clip", "write_default_clip"]
 
@@ -264,7 +264,7 @@ def default_clip_path() -> pathlib.Path:
         path = _resource_stack.enter_context(importlib.resources.as_file(ref))
     if not path.is_file():
         raise JaxanimError(
-            f"the shipped default clip is missing at {path}; regenerate it with `python -m jaxanim.default_clip`"
+            f"the shipped default clip is missing at {path}; regenerate it with `python -m jaxanim.skeleton._default_clip`"
         )
     return path
 

@@ -75,10 +75,10 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from . import rotations as _rotations
-from ._errors import BVHParseError, JaxanimError, check_float, check_shape
-from ._types import Array, ArrayLike, Float
-from .skeleton import ROTATION_CHANNELS, VALID_CHANNELS, Motion, Skeleton
+from .. import rotations as _rotations
+from .._errors import BVHParseError, JaxanimError, check_float, check_shape
+from .._types import Array, ArrayLike, Float
+from ._skeleton import ROTATION_CHANNELS, VALID_CHANNELS, Motion, Skeleton
 
 __all__ = [
     "channels_to_motion",

@@ -17,9 +17,9 @@ import sys
 
 import numpy as np
 
-from ._errors import JaxanimError
-from .fk import FKResult
-from .skeleton import Skeleton
+from .._errors import JaxanimError
+from ..kinematics._fk import FKResult
+from ..skeleton._skeleton import Skeleton
 
 __all__ = ["plot_pose", "save_pose_png"]
 

@@ -78,12 +78,12 @@ from jax import lax
 
 from solvers import RESULTS
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
-from ._types import Array, Float
-from .fk import forward_kinematics
-from .ik import IKSolution, Target, _check_targets
-from .skeleton import Skeleton
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float
+from ..kinematics._fk import forward_kinematics
+from ._solve import IKSolution, Target, _check_targets
+from ..skeleton._skeleton import Skeleton
 
 __all__ = ["solve_ik_ccd"]
 

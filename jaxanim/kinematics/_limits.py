@@ -36,10 +36,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import rotations as rot
-from ._errors import JaxanimError, check_shape
-from ._types import Array, Float
-from .skeleton import Skeleton
+from .. import rotations as rot
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float
+from ..skeleton._skeleton import Skeleton
 
 __all__ = ["EulerLimit", "SwingTwistLimit", "limit_violation"]
 

@@ -41,11 +41,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._errors import BVHParseError, JaxanimError
-from .bvh import read_bvh, write_bvh
-from .default_clip import default_clip_path
-from .fk import FKResult, forward_kinematics
-from .skeleton import POSITION_CHANNELS, Motion, Skeleton
+from .._errors import BVHParseError, JaxanimError
+from ..skeleton._bvh import read_bvh, write_bvh
+from ..skeleton._default_clip import default_clip_path
+from ..kinematics._fk import FKResult, forward_kinematics
+from ..skeleton._skeleton import POSITION_CHANNELS, Motion, Skeleton
 
 __all__ = ["DEMO_STEPS", "main"]
 
@@ -189,7 +189,7 @@ def _check_frame(clip: _Clip, frame: int) -> None:
 
 
 def _plot(clip: _Clip, frame: int, out: str | os.PathLike) -> None:
-    from .plot import save_pose_png  # matplotlib is optional: import it only to plot
+    from ._plot import save_pose_png  # matplotlib is optional: import it only to plot
 
     m = clip.motion
     fk = forward_kinematics(clip.skeleton, m.rotations[frame], m.translations[frame])
@@ -277,8 +277,8 @@ def _cmd_fk(args: argparse.Namespace, ui: _UI) -> int:
 def _cmd_ik(args: argparse.Namespace, ui: _UI) -> int:
     import json
 
-    from .bvh import write_bvh
-    from .ik import solve_ik_clip, targets_from_json
+    from ..skeleton._bvh import write_bvh
+    from ..ik._solve import solve_ik_clip, targets_from_json
 
     clip = _load(args.file, ui, args.dtype)
     try:
@@ -375,7 +375,7 @@ class _SimRun:
 
 
 def _sim_status(result) -> tuple[str, str]:
-    from .physics import SimResult
+    from ..physics._model import SimResult
 
     for name in ("successful", "nonfinite", "exploded"):
         if bool(result == getattr(SimResult, name)):
@@ -385,11 +385,11 @@ def _sim_status(result) -> tuple[str, str]:
 
 def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) -> _SimRun:
     """Build the character, compile the rollout and the pose / CoM / error maps, run them."""
-    from . import character
-    from .contact import make_ground
-    from .balance import center_of_mass
-    from .control import joint_errors
-    from .physics import rollout
+    from .. import character
+    from ..physics._contact import make_ground
+    from ..character._balance import center_of_mass
+    from ..character._pd import joint_errors
+    from ..physics._model import rollout
 
     reference = _looped_motion(clip.motion, plan.frames)
     ui.progress(f"building the character ({args.contact} contact) and the controller")
@@ -432,7 +432,7 @@ def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) ->
 
 def _plot_simulation(path, run: _SimRun, frame_time: float, title: str) -> None:
     """Two panels over time: the centre of mass height (m) and the mean joint error (degrees)."""
-    from .plot import _import_matplotlib
+    from ._plot import _import_matplotlib
 
     _import_matplotlib(pyplot=False)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -482,7 +482,7 @@ def _cmd_simulate(args: argparse.Namespace, ui: _UI) -> int:
     _check_writable("--out", out)
     if plot is not None:
         _check_writable("--plot", plot)
-        from .plot import _import_matplotlib
+        from ._plot import _import_matplotlib
 
         _import_matplotlib(pyplot=False)  # fail before simulating when matplotlib is missing
     frame_time = float(clip.motion.frame_time)
@@ -714,7 +714,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    from . import __version__
+    from .._version import __version__
 
     return __version__
 

@@ -28,11 +28,12 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ._errors import JaxanimError, check_float, check_shape
-from ._types import Array, ArrayLike, Float
+from .._errors import JaxanimError, check_float, check_shape
+from .._types import Array, ArrayLike, Float
 
 __all__ = [
     "axis_angle_to_quat",
+    "perpendicular_basis",
     "euler_to_matrix",
     "euler_to_quat",
     "matrix_to_euler",
@@ -1045,3 +1046,13 @@ def rotation_between(a: Float[ArrayLike, "*batch 3"], b: Float[ArrayLike, "*batc
     q_anti = jnp.concatenate([jnp.zeros_like(w)[..., None], _perpendicular(ua)], axis=-1)
     q = jnp.where(anti[..., None], q_anti, q)
     return jnp.where((ok_a & ok_b)[..., None], q, _identity_quat_like(q))
+
+
+def perpendicular_basis(n: Float[Array, "*batch 3"]) -> tuple[Array, Array]:
+    """Two unit vectors ``(t1, t2)`` completing the unit vector ``n`` to a right-handed orthonormal
+    basis ``(t1, t2, n)``, over leading axes (``t2 = n x t1``)."""
+    zero = jnp.zeros_like(n)
+    helper = jnp.where(jnp.abs(n[..., :1]) < 0.9, zero.at[..., 0].set(1.0), zero.at[..., 1].set(1.0))
+    t1 = jnp.cross(n, helper)
+    t1 = t1 / jnp.linalg.norm(t1, axis=-1, keepdims=True)
+    return t1, jnp.cross(n, t1)

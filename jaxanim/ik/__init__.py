@@ -1,0 +1,15 @@
+"""Inverse kinematics: targets, Gauss-Newton / Levenberg-Marquardt solves with joint limits
+(:func:`solve_ik`, :func:`solve_ik_clip`), the CCD baseline and the JSON target format.
+"""
+
+from ..kinematics import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit, limit_violation as limit_violation
+from ._solve import (
+    IKSolution as IKSolution,
+    Target as Target,
+    solve_ik as solve_ik,
+    solve_ik_clip as solve_ik_clip,
+    targets_from_json as targets_from_json,
+)
+from ._ccd import (
+    solve_ik_ccd as solve_ik_ccd,
+)

@@ -1,0 +1,20 @@
+"""Forward kinematics, its inverse (global to local), centre of mass, geometric Jacobians and the
+retraction that matches them, joint limits.
+"""
+
+from ._fk import (
+    FKResult as FKResult,
+    center_of_mass as center_of_mass,
+    forward_kinematics as forward_kinematics,
+    global_to_local as global_to_local,
+    segment_com_offsets as segment_com_offsets,
+)
+from ._jacobians import (
+    apply_increment as apply_increment,
+    jacobian as jacobian,
+)
+from ._limits import (
+    EulerLimit as EulerLimit,
+    SwingTwistLimit as SwingTwistLimit,
+    limit_violation as limit_violation,
+)

@@ -1,0 +1,33 @@
+"""Skeletons and clips: :class:`Skeleton`, :class:`Motion`, BVH read / write, the shipped clip and
+clip operations (resampling, retargeting).
+"""
+
+from ._skeleton import (
+    Motion as Motion,
+    POSITION_CHANNELS as POSITION_CHANNELS,
+    ROTATION_CHANNELS as ROTATION_CHANNELS,
+    Skeleton as Skeleton,
+    VALID_CHANNELS as VALID_CHANNELS,
+    rest_motion as rest_motion,
+)
+from ._bvh import (
+    channels_to_motion as channels_to_motion,
+    format_bvh as format_bvh,
+    motion_to_channels as motion_to_channels,
+    parse_bvh as parse_bvh,
+    read_bvh as read_bvh,
+    write_bvh as write_bvh,
+)
+from ._clips import (
+    resample as resample,
+    resample_at as resample_at,
+    rest_alignment as rest_alignment,
+    retarget as retarget,
+)
+from ._default_clip import (
+    default_clip_channels as default_clip_channels,
+    default_clip_path as default_clip_path,
+    default_skeleton as default_skeleton,
+    make_default_clip as make_default_clip,
+    write_default_clip as write_default_clip,
+)
