@@ -263,7 +263,7 @@ def test_default_clip_is_a_walk(walk_fk):
         [p[:, [skel.index(n) for n in ("LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase")]],
          e[:, [skel.end_site_names.index(n) for n in ("LeftToeBase_End", "RightToeBase_End")]]], axis=1
     )
-    lowest = feet[..., 1].min(axis=1)  # per frame, metres (the heel is 7 cm below the ankle)
+    lowest = feet[..., 1].min(axis=1)  # per frame, meters (the heel is 7 cm below the ankle)
     assert lowest.min() > -1e-3 and lowest.max() < 0.03, "feet are not near the ground on every frame"
     root = p[:, 0]
     speed = np.diff(root[:, 2]) / dt

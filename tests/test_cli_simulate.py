@@ -30,10 +30,10 @@ _SECONDS = 0.25  # 30 frames at 120 fps
 _FRAMES = 30
 _SHORT = 10  # frames of the short clip that the --no-root-force run loops
 _ATOL_FIRST = 1e-5  # frame 0 vs the clip's frame 0, FK positions in file units (6-decimal BVH round-off)
-# With the root force the root joint stays this close to the clip's (metres): the servo's 200 N/m
+# With the root force the root joint stays this close to the clip's (meters): the servo's 200 N/m
 # per kg sags by g / 200 = 4.9 cm under the whole weight, less when the feet carry some (3.9 cm seen).
 _ATOL_ROOT_M = 0.06
-_ATOL_SINK_M = 0.02  # no joint goes further than this below the clip's lowest joint (metres)
+_ATOL_SINK_M = 0.02  # no joint goes further than this below the clip's lowest joint (meters)
 _MIN_ROOT_EFFECT_M = 2e-3  # the root force moves the root at least this much by frame 9 (9.5 mm seen)
 _PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -93,7 +93,7 @@ def _fk(skel, motion):
 
 
 def _unit(skel) -> float:
-    """Metres per file unit, as the character infers it: the rest pose is 1.7 m tall."""
+    """Meters per file unit, as the character infers it: the rest pose is 1.7 m tall."""
     rest = jaxanim.forward_kinematics(skel, skel.rest_rotations())
     pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions)])
     return 1.7 / float(pts[:, 1].max() - pts[:, 1].min())

@@ -363,7 +363,7 @@ class _SimRun:
     """What :func:`_simulate` returns: the written frames, their diagnostics, the status and timings."""
 
     motion: Motion  # the simulated clip (file units, the clip's frame time)
-    com_height: np.ndarray  # [frames] metres
+    com_height: np.ndarray  # [frames] meters
     error: np.ndarray  # [frames] mean joint rotation error, radians
     ok: bool
     status: str  # "successful", "nonfinite" or "exploded"
@@ -431,7 +431,7 @@ def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) ->
 
 
 def _plot_simulation(path, run: _SimRun, frame_time: float, title: str) -> None:
-    """Two panels over time: the centre of mass height (m) and the mean joint error (degrees)."""
+    """Two panels over time: the center of mass height (m) and the mean joint error (degrees)."""
     from ._plot import _import_matplotlib
 
     _import_matplotlib(pyplot=False)
@@ -605,7 +605,7 @@ _DESCRIPTION = """\
 jaxanim: physics-based character animation numerics in JAX.
 
 Commands read a BVH file; without FILE they use the shipped default clip (a
-procedural walk, 21 joints, metres, Y up, 120 frames at 30 fps). Computation is
+procedural walk, 21 joints, meters, Y up, 120 frames at 30 fps). Computation is
 float64 unless --float32. Bad input exits with status 2 and an
 'error: <path>:<line>: <message>' line on stderr."""
 

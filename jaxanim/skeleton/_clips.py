@@ -16,7 +16,7 @@ from ._skeleton import Motion, Skeleton
 def resample_at(motion: Motion, frames: Float[Array, " n"]) -> Motion:
     """Sample a clip at fractional frame indices (jittable, vmappable).
 
-    Rotations are interpolated with :func:`jaxanim.rotations.slerp` between the two neighbouring
+    Rotations are interpolated with :func:`jaxanim.rotations.slerp` between the two neighboring
     frames, translations linearly; indices are clamped to ``[0, num_frames - 1]``.
 
     Args:
@@ -70,7 +70,7 @@ def resample(motion: Motion, frame_time: float | None = None, *, fps: float | No
 
 
 def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rotation M minimising sum |M src_i - dst_i|^2 (rows are unit directions)."""
+    """Rotation M minimizing sum |M src_i - dst_i|^2 (rows are unit directions)."""
     H = src.T @ dst
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
