@@ -143,40 +143,92 @@ def _parse_channels(line: int, toks: list[str], owner: str) -> tuple[str, ...]:
     return tuple(out)
 
 
+@dataclasses.dataclass
+class _Hierarchy:
+    """What the HIERARCHY block has declared so far, in file order."""
+
+    names: list[str] = dataclasses.field(default_factory=list)
+    name_lines: dict[str, int] = dataclasses.field(default_factory=dict)
+    parents: list[int] = dataclasses.field(default_factory=list)
+    offsets: list[list[float]] = dataclasses.field(default_factory=list)
+    channels: list[tuple[str, ...]] = dataclasses.field(default_factory=list)
+    end_parents: list[int] = dataclasses.field(default_factory=list)
+    end_offsets: list[list[float]] = dataclasses.field(default_factory=list)
+
+    def open_joint(self, reader: _Reader, line: int, text: str, keyword: str, parent: int) -> _Block:
+        """A ``ROOT`` / ``JOINT <name>`` line and the ``{`` after it."""
+        name = _rest_after_keyword(text)
+        if not name:
+            raise _Fail(line, f"expected a joint name after {keyword}")
+        if name in self.name_lines:
+            raise _Fail(line, f"duplicate joint name {name!r} (first on line {self.name_lines[name]})")
+        bline, btoks, _ = reader.expect(f"'{{' after {keyword} name")
+        if btoks != ["{"]:
+            raise _Fail(bline, f"expected '{{' after {keyword} name {name!r}, got {_show(' '.join(btoks))}")
+        self.name_lines[name] = line
+        self.names.append(name)
+        self.parents.append(parent)
+        self.offsets.append([0.0, 0.0, 0.0])
+        self.channels.append(())
+        return _Block("joint", len(self.names) - 1, name, line)
+
+    def open_end_site(self, reader: _Reader, line: int, toks: list[str], joint: _Block) -> _Block:
+        """An ``End Site`` line inside ``joint`` and the ``{`` after it."""
+        if len(toks) != 2 or toks[1].upper() != "SITE":
+            raise _Fail(line, f"expected 'End Site', got {_show(' '.join(toks))}")
+        bline, btoks, _ = reader.expect("'{' after End Site")
+        if btoks != ["{"]:
+            raise _Fail(bline, f"expected '{{' after End Site, got {_show(' '.join(btoks))}")
+        self.end_parents.append(joint.index)
+        self.end_offsets.append([0.0, 0.0, 0.0])
+        return _Block("end", len(self.end_parents) - 1, joint.name, line)
+
+    def result(self):
+        """``(names, parents, offsets, channels, end_parents, end_offsets)``; End Sites numbered by
+        their joint, then in file order (a stable sort)."""
+        order = sorted(range(len(self.end_parents)), key=lambda e: self.end_parents[e])
+        return (
+            self.names,
+            self.parents,
+            np.array(self.offsets, dtype=np.float64).reshape(-1, 3),
+            self.channels,
+            [self.end_parents[e] for e in order],
+            np.array([self.end_offsets[e] for e in order], dtype=np.float64).reshape(-1, 3),
+        )
+
+
+def _close_block(line: int, toks: list[str], top: _Block, owner: str) -> None:
+    """Check a ``}`` line: alone, and after the block's OFFSET (and a joint's CHANNELS)."""
+    if len(toks) != 1:
+        raise _Fail(line, f"expected '}}' alone on its line, got {_show(' '.join(toks))}")
+    if not top.offset_line:
+        raise _Fail(line, f"expected OFFSET in {owner} before '}}'")
+    if top.kind == "joint" and not top.channels_line:
+        raise _Fail(line, f"expected CHANNELS in {owner} before '}}'")
+
+
+def _unexpected(line: int, toks: list[str], top: _Block, owner: str) -> _Fail:
+    """The error for a line that has no place in the open block."""
+    kw = toks[0].upper()
+    if kw == "ROOT":
+        return _Fail(line, f"unexpected ROOT inside {owner} (expected '}}' first; only one ROOT is supported)")
+    if kw == "MOTION":
+        return _Fail(line, f"expected '}}' closing {owner} (opened on line {top.line}), got MOTION")
+    if toks[0].lower() in _CHANNEL_BY_LOWER:
+        return _Fail(line, f"unexpected channel name {_show(toks[0])} in {owner}: channel names belong on the CHANNELS line")
+    return _Fail(line, f"expected OFFSET, CHANNELS, JOINT, End Site or '}}' in {owner}, got {_show(toks[0])}")
+
+
 def _parse_hierarchy(reader: _Reader):
     """The HIERARCHY block: joint names, parents, OFFSETs, channels and the End Sites (by joint)."""
-    names: list[str] = []
-    name_lines: dict[str, int] = {}
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[tuple[str, ...]] = []
-    end_parents: list[int] = []
-    end_offsets: list[list[float]] = []
-
+    tree = _Hierarchy()
     line, toks, _ = reader.expect("'HIERARCHY'")
     if toks[0].upper() != "HIERARCHY" or len(toks) != 1:
         raise _Fail(line, f"expected 'HIERARCHY' on the first line, got {_show(' '.join(toks))}")
     line, toks, text = reader.expect("'ROOT <name>'")
     if toks[0].upper() != "ROOT":
         raise _Fail(line, f"expected 'ROOT <name>' after HIERARCHY, got {_show(toks[0])}")
-
-    def open_joint(line: int, text: str, keyword: str, parent: int) -> _Block:
-        name = _rest_after_keyword(text)
-        if not name:
-            raise _Fail(line, f"expected a joint name after {keyword}")
-        if name in name_lines:
-            raise _Fail(line, f"duplicate joint name {name!r} (first on line {name_lines[name]})")
-        bline, btoks, _ = reader.expect(f"'{{' after {keyword} name")
-        if btoks != ["{"]:
-            raise _Fail(bline, f"expected '{{' after {keyword} name {name!r}, got {_show(' '.join(btoks))}")
-        name_lines[name] = line
-        names.append(name)
-        parents.append(parent)
-        offsets.append([0.0, 0.0, 0.0])
-        channels.append(())
-        return _Block("joint", len(names) - 1, name, line)
-
-    stack = [open_joint(line, text, "ROOT", -1)]
+    stack = [tree.open_joint(reader, line, text, "ROOT", -1)]
     while stack:
         top = stack[-1]
         owner = f"joint {top.name!r}" if top.kind == "joint" else f"the End Site of {top.name!r}"
@@ -186,63 +238,35 @@ def _parse_hierarchy(reader: _Reader):
         line, toks, text = got
         kw = toks[0].upper()
         if kw == "}":
-            if len(toks) != 1:
-                raise _Fail(line, f"expected '}}' alone on its line, got {_show(' '.join(toks))}")
-            if not top.offset_line:
-                raise _Fail(line, f"expected OFFSET in {owner} before '}}'")
-            if top.kind == "joint" and not top.channels_line:
-                raise _Fail(line, f"expected CHANNELS in {owner} before '}}'")
+            _close_block(line, toks, top, owner)
             stack.pop()
         elif kw == "OFFSET":
             if top.offset_line:
                 raise _Fail(line, f"second OFFSET in {owner} (first on line {top.offset_line})")
             value = _parse_offset(line, toks, owner)
             if top.kind == "joint":
-                offsets[top.index] = value
+                tree.offsets[top.index] = value
             else:
-                end_offsets[top.index] = value
+                tree.end_offsets[top.index] = value
             top.offset_line = line
         elif top.kind == "end":
             raise _Fail(line, f"expected OFFSET or '}}' in {owner}, got {_show(toks[0])}")
         elif kw == "CHANNELS":
             if top.channels_line:
                 raise _Fail(line, f"second CHANNELS in {owner} (first on line {top.channels_line})")
-            channels[top.index] = _parse_channels(line, toks, owner)
+            tree.channels[top.index] = _parse_channels(line, toks, owner)
             top.channels_line = line
         elif kw in ("JOINT", "END"):
             child = "JOINT" if kw == "JOINT" else "End Site"
             if not (top.offset_line and top.channels_line):
                 raise _Fail(line, f"expected OFFSET and CHANNELS in {owner} before {child}")
             if kw == "JOINT":
-                stack.append(open_joint(line, text, "JOINT", top.index))
+                stack.append(tree.open_joint(reader, line, text, "JOINT", top.index))
             else:
-                if len(toks) != 2 or toks[1].upper() != "SITE":
-                    raise _Fail(line, f"expected 'End Site', got {_show(' '.join(toks))}")
-                bline, btoks, _ = reader.expect("'{' after End Site")
-                if btoks != ["{"]:
-                    raise _Fail(bline, f"expected '{{' after End Site, got {_show(' '.join(btoks))}")
-                end_parents.append(top.index)
-                end_offsets.append([0.0, 0.0, 0.0])
-                stack.append(_Block("end", len(end_parents) - 1, top.name, line))
-        elif kw == "ROOT":
-            raise _Fail(line, f"unexpected ROOT inside {owner} (expected '}}' first; only one ROOT is supported)")
-        elif kw == "MOTION":
-            raise _Fail(line, f"expected '}}' closing {owner} (opened on line {top.line}), got MOTION")
-        elif toks[0].lower() in _CHANNEL_BY_LOWER:
-            raise _Fail(line, f"unexpected channel name {_show(toks[0])} in {owner}: channel names belong on the CHANNELS line")
+                stack.append(tree.open_end_site(reader, line, toks, top))
         else:
-            raise _Fail(line, f"expected OFFSET, CHANNELS, JOINT, End Site or '}}' in {owner}, got {_show(toks[0])}")
-
-    # End Sites numbered by their joint, then in file order (a stable sort).
-    order = sorted(range(len(end_parents)), key=lambda e: end_parents[e])
-    return (
-        names,
-        parents,
-        np.array(offsets, dtype=np.float64).reshape(-1, 3),
-        channels,
-        [end_parents[e] for e in order],
-        np.array([end_offsets[e] for e in order], dtype=np.float64).reshape(-1, 3),
-    )
+            raise _unexpected(line, toks, top, owner)
+    return tree.result()
 
 
 # ------------------------------------------------------------------------------------------------
