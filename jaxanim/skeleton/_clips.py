@@ -144,8 +144,8 @@ def retarget(
     """Retarget a clip between two skeletons of the same topology but different rest poses.
 
     Every bone keeps its global orientation: with ``M_j`` from :func:`rest_alignment`, the target's
-    global rotations are ``G^B_j = G^A_j M_j``, hence local rotations
-    ``R^B_j = M_parent(j)^T R^A_j M_j`` (``M_parent = I`` for the root). Joints without position
+    global rotations are ``R_world_joint^B = R_world_joint^A M_j``, hence local rotations
+    ``R_parent_joint^B = M_parent(j)^T R_parent_joint^A M_j`` (``M_parent = I`` for the root). Joints without position
     channels take the target's OFFSETs; position-channel values (the root translation) are scaled
     by ``root_scale``.
 
