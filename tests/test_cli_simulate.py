@@ -2,18 +2,22 @@
 
 Physics compiles slowly, so the whole file runs ``simulate`` twice, in one module fixture, for
 0.25 s (30 frames at 120 fps) of the CMU clip: with the root force and ``--plot``, and with
-``--no-root-force`` on the clip's first 10 frames (so it loops three times). Frames 0 to 9 of the
-two runs track the same frames with the same step, so they differ only by the root force. The
-written files are checked against independent references: the clip read back with ``read_bvh``
-and its forward kinematics. Everything else (the frame / step plan, the loop, bad input) runs no
+``--no-root-force``. The two runs track the same frames with the same step and differ only by the
+root force, which is an argument of the compiled rollout, not a constant in it: with the
+persistent compilation cache on (in a temporary directory), the second run loads the first one's
+program. The written files are checked against independent references: the clip read back with
+``read_bvh`` and its forward kinematics (one compiled shape for the clip, one for the 30 written
+frames). Everything else (the frame / step plan, the loop of a short clip, bad input) runs no
 physics.
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import io
 import math
+import os
 import sys
 
 import numpy as np
@@ -28,18 +32,18 @@ from .helpers import assert_close
 _CMU = "cmu_01_01_trim300"
 _SECONDS = 0.25  # 30 frames at 120 fps
 _FRAMES = 30
-_SHORT = 10  # frames of the short clip that the --no-root-force run loops
+_SHORT = 10  # frames of the short clip that simulate loops; frames 1-9 of the two runs are compared
 _ATOL_FIRST = 1e-5  # frame 0 vs the clip's frame 0, FK positions in file units (6-decimal BVH round-off)
-# With the root force the root joint stays this close to the clip's (metres): the servo's 200 N/m
+# With the root force the root joint stays this close to the clip's (meters): the servo's 200 N/m
 # per kg sags by g / 200 = 4.9 cm under the whole weight, less when the feet carry some (3.9 cm seen).
 _ATOL_ROOT_M = 0.06
-_ATOL_SINK_M = 0.02  # no joint goes further than this below the clip's lowest joint (metres)
+_ATOL_SINK_M = 0.02  # no joint goes further than this below the clip's lowest joint (meters)
 _MIN_ROOT_EFFECT_M = 2e-3  # the root force moves the root at least this much by frame 9 (9.5 mm seen)
 _PNG = b"\x89PNG\r\n\x1a\n"
 
 
 def _run(capsys, *argv) -> tuple[int, str, str]:
-    code = cli.main([str(a) for a in argv])
+    code = cli.main(["--no-compile-cache", *(str(a) for a in argv)])  # in-process: no cache in the user's home
     captured = capsys.readouterr()
     return code, captured.out, captured.err
 
@@ -64,28 +68,35 @@ def _short_clip(path, frames: int) -> None:
 
 @pytest.fixture(scope="module")
 def sims(tmp_path_factory):
-    """The two simulate runs: ``(dir, cmu, short, {"root": (code, stdout, stderr), "free": (...)})``."""
+    """The two simulate runs: ``(dir, cmu, {"root": (code, stdout, stderr), "free": (...)})``."""
     d = tmp_path_factory.mktemp("simulate")
     cmu = shared_data_dir() / "bvh" / f"{_CMU}.bvh"
-    short = d / "short.bvh"
-    _short_clip(short, _SHORT)
     runs = {}
-    for key, argv in (
-        ("root", ["simulate", cmu, "--seconds", _SECONDS, "--out", d / "root.bvh"]
-         + (["--plot", d / "root.png"] if _has_matplotlib() else [])),
-        ("free", ["simulate", short, "--seconds", _SECONDS, "--no-root-force", "--out", d / "free.bvh"]),
-    ):
-        out, err = io.StringIO(), io.StringIO()  # module scope: no capsys
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = cli.main([str(a) for a in argv])
-        runs[key] = (code, out.getvalue(), err.getvalue())
-    return d, cmu, short, runs
+    saved = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = str(d / "cache")  # the cache, but not in the user's home
+    try:
+        for key, argv in (
+            ("root", ["simulate", cmu, "--seconds", _SECONDS, "--out", d / "root.bvh"]
+             + (["--plot", d / "root.png"] if _has_matplotlib() else [])),
+            ("free", ["simulate", cmu, "--seconds", _SECONDS, "--no-root-force", "--out", d / "free.bvh"]),
+        ):
+            out, err = io.StringIO(), io.StringIO()  # module scope: no capsys
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                code = cli.main([str(a) for a in argv])
+            runs[key] = (code, out.getvalue(), err.getvalue())
+    finally:
+        if saved is None:
+            del os.environ["JAX_COMPILATION_CACHE_DIR"]
+        else:
+            os.environ["JAX_COMPILATION_CACHE_DIR"] = saved
+    return d, cmu, runs
 
 
 @pytest.fixture(scope="module")
 def cmu_clip():
+    """The CMU clip, its FK (all 300 frames) and its unit."""
     skel, motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / f"{_CMU}.bvh")[:2]
-    return skel, motion
+    return skel, motion, _fk(skel, motion), _unit(skel)
 
 
 def _fk(skel, motion):
@@ -93,9 +104,14 @@ def _fk(skel, motion):
 
 
 def _unit(skel) -> float:
-    """Metres per file unit, as the character infers it: the rest pose is 1.7 m tall."""
-    rest = jaxanim.forward_kinematics(skel, skel.rest_rotations())
-    pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions)])
+    """Meters per file unit, as the character infers it: the rest pose is 1.7 m tall. With identity
+    rotations every joint sits at its parent plus its OFFSET (NumPy, no compilation)."""
+    offsets = np.asarray(skel.offsets)
+    p = np.zeros_like(offsets)
+    for j, parent in enumerate(skel.parents):  # parents[j] < j
+        p[j] = offsets[j] + (p[parent] if parent >= 0 else 0.0)
+    ends = p[np.asarray(skel.end_site_parents, dtype=int)] + np.asarray(skel.end_site_offsets)
+    pts = np.concatenate([p, ends])
     return 1.7 / float(pts[:, 1].max() - pts[:, 1].min())
 
 
@@ -103,7 +119,7 @@ def _unit(skel) -> float:
 
 
 def test_simulate_writes_the_tracked_clip(sims, cmu_clip):
-    d, cmu, _, runs = sims
+    d, cmu, runs = sims
     code, out, err = runs["root"]
     assert code == 0, err
     assert "Traceback" not in err
@@ -112,7 +128,7 @@ def test_simulate_writes_the_tracked_clip(sims, cmu_clip):
     assert "tracking error (joint rotation vs the clip) mean" in out and "rollout compile" in out, out
     assert "ms per step" in out, out
     assert "compiling the rollout" in err  # progress on stderr
-    skel, motion = cmu_clip
+    skel, motion, a, unit = cmu_clip
     sim_skel, sim = jaxanim.read_bvh(d / "root.bvh")[:2]
     # The same skeleton, the clip's frame time, seconds x fps frames.
     assert sim_skel.names == skel.names and sim_skel.parents == skel.parents
@@ -122,10 +138,9 @@ def test_simulate_writes_the_tracked_clip(sims, cmu_clip):
     assert float(sim.frame_time) == float(motion.frame_time)
     assert sim.num_frames == _FRAMES == round(_SECONDS / float(motion.frame_time))
     # Frame 0 is the clip's first pose; the root follows the clip's (root force); nothing sinks.
-    a, b = _fk(skel, motion), _fk(sim_skel, sim)
+    b = _fk(sim_skel, sim)
     assert_close("frame 0 joint positions", b.positions[0], a.positions[0], atol=_ATOL_FIRST)
     assert_close("frame 0 End Sites", b.end_site_positions[0], a.end_site_positions[0], atol=_ATOL_FIRST)
-    unit = _unit(skel)
     root_gap = float(np.abs(np.asarray(b.positions[:, 0] - a.positions[:_FRAMES, 0])).max()) * unit
     assert root_gap < _ATOL_ROOT_M, f"root is {root_gap:.3f} m from the clip's"
     lowest = float(np.asarray(b.positions[..., 1]).min()) * unit
@@ -139,30 +154,32 @@ def test_simulate_writes_the_tracked_clip(sims, cmu_clip):
 def test_simulate_plot_is_a_png(sims):
     if not _has_matplotlib():
         pytest.skip("matplotlib is not installed")
-    d, _, _, runs = sims
+    d, _, runs = sims
     assert runs["root"][0] == 0, runs["root"][2]
     data = (d / "root.png").read_bytes()
     assert data[:8] == _PNG and len(data) > 10_000
     assert f"plot {d / 'root.png'}" in runs["root"][1]
 
 
-def test_no_root_force_loops_a_short_clip_and_differs(sims, cmu_clip):
-    d, _, short, runs = sims
+def test_no_root_force_differs_and_reuses_the_compiled_rollout(sims, cmu_clip):
+    d, _, runs = sims
     code, out, err = runs["free"]
     assert code in (0, 1), err  # 1: the rollout stopped (then the frames hold the last good state)
     assert "Traceback" not in err
     assert "no root force" in out and f"{_FRAMES} frames at 120 fps" in out, out
-    assert f"looping the clip: {_FRAMES} frames from {_SHORT}" in err, err
-    skel, motion = cmu_clip
+    skel, motion, a, unit = cmu_clip
     sim = jaxanim.read_bvh(d / "free.bvh")[1]
     root = jaxanim.read_bvh(d / "root.bvh")[1]
     assert sim.num_frames == _FRAMES and np.isfinite(np.asarray(sim.translations)).all()
-    a, b, c = _fk(skel, motion), _fk(skel, sim), _fk(skel, root)
+    b, c = _fk(skel, sim), _fk(skel, root)
     assert_close("frame 0 joint positions", b.positions[0], a.positions[0], atol=_ATOL_FIRST)
     # Frames 1-9 track the same clip frames as the root-force run with the same step: only the root
     # force differs, and it moves the root.
-    gap = np.abs(np.asarray(b.positions[1:_SHORT, 0] - c.positions[1:_SHORT, 0])).max() * _unit(skel)
+    gap = np.abs(np.asarray(b.positions[1:_SHORT, 0] - c.positions[1:_SHORT, 0])).max() * unit
     assert gap > _MIN_ROOT_EFFECT_M, f"--no-root-force changed the root by only {gap:.2e} m"
+    # The same program as the first run's (the root force is an argument): loaded, not compiled.
+    rollouts = [p.name for p in (d / "cache").iterdir() if p.name.startswith("jit_simulate-")]
+    assert len(rollouts) == 1, rollouts  # one key for both runs: the second found the first's entry
 
 
 # --- the plan and the loop (no physics) ---------------------------------------------------------------
@@ -191,7 +208,7 @@ def test_sim_plan_too_short():
 
 
 def test_looped_motion_carries_the_root_on(cmu_clip):
-    _, motion = cmu_clip
+    _, motion, _, _ = cmu_clip
     clip = jaxanim.Motion(motion.rotations[:5], motion.translations[:5], motion.frame_time)
     assert cli._looped_motion(clip, 4).num_frames == 4
     assert_close("no loop", cli._looped_motion(clip, 5).translations, clip.translations, atol=0.0)
@@ -252,21 +269,35 @@ def test_plot_without_matplotlib_fails_before_simulating(tmp_path, capsys, monke
     assert "compiling" not in err and not out.exists()
 
 
-def test_a_rollout_that_stops_writes_its_frames_and_exits_1(tmp_path, capsys, monkeypatch):
-    """The status path, with the rollout replaced by one that blew up after 10 of 116 steps."""
+def _blown_up(clip, args, plan, ui):
+    """A stand-in for the rollout that blew up after 10 steps (held at frame 3 after that)."""
     from jaxanim.physics import SimResult
 
-    def blown_up(clip, args, plan, ui):
-        idx = np.minimum(np.arange(plan.frames), 3)  # held at the last good state after frame 3
-        m = clip.motion
-        return cli._SimRun(
-            motion=jaxanim.Motion(m.rotations[idx], m.translations[idx], m.frame_time),
-            com_height=np.full(plan.frames, 0.9), error=np.full(plan.frames, 0.1), ok=False, status="exploded",
-            message=SimResult[SimResult.exploded], steps_done=10, setup_seconds=1.0, compile_seconds=2.0,
-            run_seconds=0.5,
-        )
+    idx = np.minimum(np.arange(plan.frames), 3)
+    m = clip.motion
+    return cli._SimRun(
+        motion=jaxanim.Motion(m.rotations[idx], m.translations[idx], m.frame_time),
+        com_height=np.full(plan.frames, 0.9), error=np.full(plan.frames, 0.1), ok=False, status="exploded",
+        message=SimResult[SimResult.exploded], steps_done=10, setup_seconds=1.0, compile_seconds=2.0, run_seconds=0.5,
+    )
 
-    monkeypatch.setattr(cli, "_simulate", blown_up)
+
+def _fake_rollout(monkeypatch) -> None:
+    # ``simulate`` looks ``_simulate`` up in its own module (``jaxanim.cli`` only re-exports it)
+    monkeypatch.setattr(importlib.import_module("jaxanim.app._simulate"), "_simulate", _blown_up)
+
+
+def test_a_short_clip_is_looped(tmp_path, capsys, monkeypatch):
+    short = tmp_path / "short.bvh"
+    _short_clip(short, _SHORT)
+    _fake_rollout(monkeypatch)
+    code, _, err = _run(capsys, "simulate", short, "--seconds", _SECONDS, "--out", tmp_path / "x.bvh")
+    assert code == 1 and f"looping the clip: {_FRAMES} frames from {_SHORT}" in err, err
+
+
+def test_a_rollout_that_stops_writes_its_frames_and_exits_1(tmp_path, capsys, monkeypatch):
+    """The status path, with the rollout replaced by one that blew up after 10 of 116 steps."""
+    _fake_rollout(monkeypatch)
     out = tmp_path / "x.bvh"
     code, stdout, err = _run(capsys, "simulate", "--seconds", "1", "--out", out)
     assert code == 1, err

@@ -200,7 +200,7 @@ def test_refs_scipy_unit_test_cases(refs, index):
     kind = case["kind"]
     expected = np.array(case["expected"], dtype=float)
     if kind == "from_quat_as_matrix":
-        got = rot.quat_to_matrix(_xyzw_to_wxyz(case["quat"]))  # unnormalised input
+        got = rot.quat_to_matrix(_xyzw_to_wxyz(case["quat"]))  # unnormalized input
     elif kind == "from_matrix_as_quat":
         got = _wxyz_to_xyzw(rot.matrix_to_quat(np.array(case["matrix"])))
     elif kind == "from_rotvec_as_quat":
@@ -270,7 +270,7 @@ _UNIT = st.floats(-1.0, 1.0, allow_nan=False)
     order=st.sampled_from(ALL_ORDERS),
 )
 def test_euler_round_trip_property(q, order):
-    """Any quaternion (unnormalised, near-singular ones included) -> Euler -> same rotation."""
+    """Any quaternion (unnormalized, near-singular ones included) -> Euler -> same rotation."""
     q = np.array(q)
     R = np.asarray(rot.quat_to_matrix(q))
     ang = np.asarray(rot.quat_to_euler(q, order))
@@ -506,7 +506,7 @@ def _sum_cubed(fn):
 
 
 # Derivatives checked at the singular points, jitted once (module scope) and reused by every
-# parametrisation: eager jacfwd dispatches each primitive separately and is far slower.
+# parametrization: eager jacfwd dispatches each primitive separately and is far slower.
 _EXP_LOG_DERIVATIVES = {
     "jacfwd rotvec_to_quat": (jax.jit(jax.jacfwd(rot.rotvec_to_quat)), "v"),
     "jacfwd rotvec_to_matrix": (jax.jit(jax.jacfwd(rot.rotvec_to_matrix)), "v"),

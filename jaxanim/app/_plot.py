@@ -25,7 +25,7 @@ __all__ = ["plot_pose", "save_pose_png"]
 
 # data axis shown on the plot's (X, Y, Z), for each up axis: cyclic permutations, no mirroring
 _AXIS_ORDER = {"x": (1, 2, 0), "y": (2, 0, 1), "z": (0, 1, 2)}
-_COLOURS = {"left": "tab:blue", "right": "tab:red", "centre": "0.2"}
+_COLORS = {"left": "tab:blue", "right": "tab:red", "center": "0.2"}
 
 
 
@@ -46,9 +46,9 @@ def _import_matplotlib(pyplot: bool):
 
 
 def _side(name: str) -> str:
-    """``"left"``, ``"right"`` or ``"centre"`` from a joint name.
+    """``"left"``, ``"right"`` or ``"center"`` from a joint name.
 
-    Recognises ``LeftArm``/``arm_left``, ``LHipJoint``/``L_arm`` (a capital ``L`` then a capital or
+    Recognizes ``LeftArm``/``arm_left``, ``LHipJoint``/``L_arm`` (a capital ``L`` then a capital or
     ``_``) and ``arm_l``/``arm.l``, after dropping a ``namespace:`` prefix (``mixamorig:LeftArm``).
     """
     n = name.rsplit(":", 1)[-1]
@@ -63,7 +63,7 @@ def _side(name: str) -> str:
             or re.search(rf"[_.]{c}$", low)
         ):
             return side
-    return "centre"
+    return "center"
 
 
 def _pose_arrays(skeleton: Skeleton, fk_result: FKResult) -> tuple[np.ndarray, np.ndarray]:
@@ -142,17 +142,17 @@ def plot_pose(
         flat[:, 2] = ground
         segs = np.stack([np.stack([flat[a], flat[b]]) for a, b, _ in bones])
         ax.add_collection3d(Line3DCollection(segs, colors="0.75", linewidths=2.0))
-    for side, colour in _COLOURS.items():
+    for side, color in _COLORS.items():
         segs = [np.stack([pts[a], pts[b]]) for a, b, s in bones if s == side]
         if segs:
-            ax.add_collection3d(Line3DCollection(np.stack(segs), colors=colour, linewidths=2.5))
+            ax.add_collection3d(Line3DCollection(np.stack(segs), colors=color, linewidths=2.5))
     ax.scatter(pts[:J, 0], pts[:J, 1], pts[:J, 2], s=10, c="k", depthshade=False)
 
-    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    center = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     half = 0.55 * max(float(np.ptp(pts, axis=0).max()), 1e-9)
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_xlim(center[0] - half, center[0] + half)
+    ax.set_ylim(center[1] - half, center[1] + half)
+    ax.set_zlim(center[2] - half, center[2] + half)
     ax.set_box_aspect((1.0, 1.0, 1.0), zoom=1.1)
     labels = "xyz"
     ax.set_xlabel(labels[order[0]])

@@ -2,16 +2,7 @@
 (SO(3) exp / log), the 6-D representation, slerp / nlerp. Every function broadcasts over leading axes.
 """
 
-from ._rotations import (
-    axis_angle_to_quat as axis_angle_to_quat,
-    euler_to_matrix as euler_to_matrix,
-    euler_to_quat as euler_to_quat,
-    matrix_to_euler as matrix_to_euler,
-    matrix_to_quat as matrix_to_quat,
-    matrix_to_rotvec as matrix_to_rotvec,
-    matrix_to_sixd as matrix_to_sixd,
-    nlerp as nlerp,
-    perpendicular_basis as perpendicular_basis,
+from ._quaternions import (
     quat_apply as quat_apply,
     quat_canonical as quat_canonical,
     quat_conjugate as quat_conjugate,
@@ -20,15 +11,30 @@ from ._rotations import (
     quat_inverse as quat_inverse,
     quat_multiply as quat_multiply,
     quat_normalize as quat_normalize,
-    quat_to_axis_angle as quat_to_axis_angle,
-    quat_to_euler as quat_to_euler,
-    quat_to_matrix as quat_to_matrix,
-    quat_to_rotvec as quat_to_rotvec,
     rotation_angle as rotation_angle,
+)
+from ._matrices import (
+    matrix_to_quat as matrix_to_quat,
+    matrix_to_sixd as matrix_to_sixd,
+    perpendicular_basis as perpendicular_basis,
+    quat_to_matrix as quat_to_matrix,
+    sixd_to_matrix as sixd_to_matrix,
+    skew as skew,
+)
+from ._so3 import (
+    axis_angle_to_quat as axis_angle_to_quat,
+    matrix_to_rotvec as matrix_to_rotvec,
+    nlerp as nlerp,
+    quat_to_axis_angle as quat_to_axis_angle,
+    quat_to_rotvec as quat_to_rotvec,
     rotation_between as rotation_between,
     rotvec_to_matrix as rotvec_to_matrix,
     rotvec_to_quat as rotvec_to_quat,
-    sixd_to_matrix as sixd_to_matrix,
-    skew as skew,
     slerp as slerp,
+)
+from ._euler import (
+    euler_to_matrix as euler_to_matrix,
+    euler_to_quat as euler_to_quat,
+    matrix_to_euler as matrix_to_euler,
+    quat_to_euler as quat_to_euler,
 )

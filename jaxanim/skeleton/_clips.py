@@ -16,7 +16,7 @@ from ._skeleton import Motion, Skeleton
 def resample_at(motion: Motion, frames: Float[Array, " n"]) -> Motion:
     """Sample a clip at fractional frame indices (jittable, vmappable).
 
-    Rotations are interpolated with :func:`jaxanim.rotations.slerp` between the two neighbouring
+    Rotations are interpolated with :func:`jaxanim.rotations.slerp` between the two neighboring
     frames, translations linearly; indices are clamped to ``[0, num_frames - 1]``.
 
     Args:
@@ -70,7 +70,7 @@ def resample(motion: Motion, frame_time: float | None = None, *, fps: float | No
 
 
 def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rotation M minimising sum |M src_i - dst_i|^2 (rows are unit directions)."""
+    """Rotation M minimizing sum |M src_i - dst_i|^2 (rows are unit directions)."""
     H = src.T @ dst
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
@@ -144,8 +144,8 @@ def retarget(
     """Retarget a clip between two skeletons of the same topology but different rest poses.
 
     Every bone keeps its global orientation: with ``M_j`` from :func:`rest_alignment`, the target's
-    global rotations are ``G^B_j = G^A_j M_j``, hence local rotations
-    ``R^B_j = M_parent(j)^T R^A_j M_j`` (``M_parent = I`` for the root). Joints without position
+    global rotations are ``R_world_joint^B = R_world_joint^A M_j``, hence local rotations
+    ``R_parent_joint^B = M_parent(j)^T R_parent_joint^A M_j`` (``M_parent = I`` for the root). Joints without position
     channels take the target's OFFSETs; position-channel values (the root translation) are scaled
     by ``root_scale``.
 

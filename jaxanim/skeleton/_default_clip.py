@@ -1,6 +1,6 @@
 """The shipped default clip: a procedurally generated walk on a 21-joint humanoid.
 
-The skeleton is in **metres**, **Y up**, the character faces **+Z** (its left is +X) and its rest
+The skeleton is in **meters**, **Y up**, the character faces **+Z** (its left is +X) and its rest
 pose is a T-pose standing on the ground plane ``y = 0``. The root ``Hips`` has the six channels
 ``Xposition Yposition Zposition Zrotation Xrotation Yrotation``; every other joint has
 ``Zrotation Xrotation Yrotation``. End Sites sit on the head, the hands and the toes::
@@ -47,8 +47,8 @@ __all__ = ["default_clip_channels", "default_clip_path", "default_skeleton", "ma
 _ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 _JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
 
-# Segment lengths (metres).
-_HIP_WIDTH = 0.09  # hip joint from the pelvis centre, sideways
+# Segment lengths (meters).
+_HIP_WIDTH = 0.09  # hip joint from the pelvis center, sideways
 _HIP_DROP = 0.06  # hip joint below the root
 _THIGH = 0.44
 _SHIN = 0.42
@@ -57,7 +57,7 @@ _TOE_TIP = 0.06  # toe End Site from the toe joint, forward
 _HEEL = (-0.04, -0.07)  # virtual heel point from the ankle (forward, up); not a joint
 _STAND_HEIGHT = _HIP_DROP + _THIGH + _SHIN - _HEEL[1]  # root height in the rest pose, heel on the ground
 
-# name, parent, OFFSET in the parent frame (metres)
+# name, parent, OFFSET in the parent frame (meters)
 _JOINTS: tuple[tuple[str, str | None, tuple[float, float, float]], ...] = (
     ("Hips", None, (0.0, 0.0, 0.0)),
     ("Spine", "Hips", (0.0, 0.08, 0.0)),
@@ -81,7 +81,7 @@ _JOINTS: tuple[tuple[str, str | None, tuple[float, float, float]], ...] = (
     ("RightFoot", "RightLeg", (0.0, -_SHIN, 0.0)),
     ("RightToeBase", "RightFoot", (0.0, _TOE[1], _TOE[0])),
 )
-# joint, End Site OFFSET in the joint frame (metres); in joint order
+# joint, End Site OFFSET in the joint frame (meters); in joint order
 _END_SITES: tuple[tuple[str, tuple[float, float, float]], ...] = (
     ("Head", (0.0, 0.18, 0.0)),
     ("LeftHand", (0.17, 0.0, 0.0)),
@@ -94,7 +94,7 @@ _CYCLE_SECONDS = 1.0  # one gait cycle (two steps)
 
 
 def default_skeleton() -> Skeleton:
-    """The 21-joint humanoid of the default clip (metres, Y up, facing +Z, T-pose rest)."""
+    """The 21-joint humanoid of the default clip (meters, Y up, facing +Z, T-pose rest)."""
     names = tuple(n for n, _, _ in _JOINTS)
     parents = tuple(-1 if p is None else names.index(p) for _, p, _ in _JOINTS)
     offsets = np.array([o for _, _, o in _JOINTS], dtype=np.float64)
@@ -167,7 +167,7 @@ def _walking_speed() -> float:
     p = np.arange(1000) / 1000.0
     h = 1e-6
     _, up = _foot_points(p)
-    v_rel = (_foot_points(p + h)[0] - _foot_points(p - h)[0]) / (2.0 * h)  # metres per cycle
+    v_rel = (_foot_points(p + h)[0] - _foot_points(p - h)[0]) / (2.0 * h)  # meters per cycle
     lowest = np.argmin(up, axis=0)
     return float(-np.mean(v_rel[lowest, np.arange(p.size)]) / _CYCLE_SECONDS)
 
@@ -226,7 +226,7 @@ def default_clip_channels(num_frames: int = 120, fps: float = 30.0) -> np.ndarra
 def make_default_clip(num_frames: int = 120, fps: float = 30.0) -> tuple[Skeleton, Motion]:
     """The default clip: a procedural walk on the 21-joint humanoid of :func:`default_skeleton`.
 
-    Metres, Y up, facing and walking towards +Z, T-pose rest, one gait cycle per second; see the
+    Meters, Y up, facing and walking towards +Z, T-pose rest, one gait cycle per second; see the
     module docstring. Arrays are float64 when ``jax_enable_x64`` is on, float32 otherwise.
 
     Args:
