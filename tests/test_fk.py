@@ -165,15 +165,42 @@ def test_global_to_local_vmap_equals_loop_small():
         assert_close("translations vs input", ti, t[i], atol=1e-12)
 
 
-def test_center_of_mass_against_numpy():
-    """Independent numpy computation from the FK reference of a shared clip."""
+def _numpy_fk(skel, q, t):
+    """Hand-written FK in numpy (loop over the joints, wxyz quaternions to matrices by the formula)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q.T
+    R_local = np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+    t = np.asarray(t, dtype=np.float64)
+    R_world, p_world = np.zeros_like(R_local), np.zeros_like(t)
+    for j, p in enumerate(skel.parents):
+        if p < 0:
+            R_world[j], p_world[j] = R_local[j], t[j]
+        else:
+            R_world[j] = R_world[p] @ R_local[j]
+            p_world[j] = p_world[p] + R_world[p] @ t[j]
+    es = np.asarray(skel.end_site_offsets)
+    p_end = np.stack([p_world[p] + R_world[p] @ es[e] for e, p in enumerate(skel.end_site_parents)])
+    return R_world, p_world, p_end
+
+
+def test_fk_and_center_of_mass_against_numpy():
+    """Both against an independent numpy computation: a hand-written FK and the segment centers
+    written out by hand for the small skeleton."""
     skel = small_skeleton()
     q, t = random_pose(skel, 5)
     masses = jnp.arange(1.0, 7.0)
     com = jaxanim.center_of_mass(skel, q, t, masses)
     out = jaxanim.forward_kinematics(skel, q, t)
-    P, R = np.asarray(out.positions), np.asarray(out.rotations)
-    # segment centres by hand: root -> mean(spine, leg)/2, spine -> mean(head, arm)/2, head -> End/2 ...
+    R, P, P_end = _numpy_fk(skel, q, t)
+    assert_close("rotations", out.rotations, R, atol=1e-14)
+    assert_close("positions", out.positions, P, atol=1e-14)
+    assert_close("end_site_positions", out.end_site_positions, P_end, atol=1e-14)
+    # segment centers by hand: root -> mean(spine, leg)/2, spine -> mean(head, arm)/2, head -> End/2 ...
     off, es = np.asarray(skel.offsets), np.asarray(skel.end_site_offsets)
     c_local = np.array([
         0.5 * (off[1] + off[5]) / 2, 0.5 * (off[2] + off[3]) / 2, 0.5 * es[0], 0.5 * off[4], 0.5 * es[1], np.zeros(3)

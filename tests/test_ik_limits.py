@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 import jaxanim
 import solvers
 from jaxanim import ik
-from jaxanim.ik import _solve as ik_impl
+from jaxanim.ik import _problem
 from jaxanim import rotations as rot
 from jaxanim.limits import EulerLimit, SwingTwistLimit, _charts, limit_violation
 
@@ -100,11 +100,14 @@ def test_swing_twist_violation_matches_geometry():
         np.testing.assert_allclose(limit_violation(skel, lim, q)[0], expected, atol=1e-10)
 
 
-def _setup(skel, targets, q, t, **kw):
-    base = dict(reference=None, pin=None, frozen=(), root_translation="free", regularization=1e-3,
-                joint_weights=None, limits=(), limit_mode="hard", limit_weight=1.0)
-    base.update(kw)
-    return ik_impl._setup(skel, targets, q, t, **base)
+def _setup(skel, targets, q, t, *, limits=(), root_translation="free", frozen=(), regularization=1e-3):
+    """The residual ``(fn, jac)``, ``y0``, ``bounds`` and pose map that solve_ik builds (hard limits)."""
+    layout = _problem._layout(skel, targets, None, frozen, root_translation, limits, "hard")
+    reg_w = jnp.full(skel.num_joints, regularization)
+    data, y0, bounds = _problem._setup(skel, layout, targets, q, t, q, t, reg_w, limits, 1.0)
+    both = jax.jit(_problem._residual)
+    return dict(fn=lambda y: both(y, data)[0], jac=lambda y: both(y, data)[1], y0=y0, bounds=bounds,
+                pose=lambda y: _problem._pose(y, data))
 
 
 @pytest.fixture(scope="module")
@@ -134,14 +137,14 @@ def test_hard_limits_reach_the_bounded_optimum_of_scipy(limited_problem):
     v = limit_violation(skel, kw["limits"], sol.rotations)
     assert float(jnp.max(v)) <= _VIOLATION_ATOL
     problem = _setup(skel, targets, q, t, **kw)
-    lo, hi = (np.asarray(b) for b in problem.bounds)
+    lo, hi = (np.asarray(b) for b in problem["bounds"])
     ref = scipy.optimize.least_squares(
-        lambda y: np.asarray(problem.fn(jnp.asarray(y), None)), np.asarray(problem.y0),
-        jac=lambda y: np.asarray(problem.jac(jnp.asarray(y), None)), bounds=(lo, hi),
+        lambda y: np.asarray(problem["fn"](jnp.asarray(y))), np.asarray(problem["y0"]),
+        jac=lambda y: np.asarray(problem["jac"](jnp.asarray(y))), bounds=(lo, hi),
         method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15,
     )
     np.testing.assert_allclose(sol.stats["cost"], ref.cost, rtol=1e-8)
-    q_ref, _ = problem.pose(jnp.asarray(ref.x))
+    q_ref, _ = problem["pose"](jnp.asarray(ref.x))
     assert float(jnp.max(rot.quat_distance(sol.rotations, q_ref))) < 1e-6
     # some limit is active: without limits the cost is lower and the limits are broken
     assert float(free.stats["cost"]) < ref.cost - 1e-6

@@ -4,6 +4,7 @@
 
 from ..kinematics import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit, limit_violation as limit_violation
 from ._solve import (
+    IKOptions as IKOptions,
     IKSolution as IKSolution,
     Target as Target,
     solve_ik as solve_ik,

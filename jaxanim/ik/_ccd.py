@@ -4,7 +4,7 @@ The course notes (``SEEDS.md`` §1.F) describe CCD as "update one joint at a tim
 optimum": cheap per step (dot and cross products), but slow and possibly jittery to converge.
 :func:`solve_ik_ccd` solves the same problem as :func:`~jaxanim.ik.solve_ik` (same targets, pose,
 ``frozen`` and ``root_translation`` arguments, same ``success`` test and the same reported cost
-``1/2 sum_i w_i (|x_i - x~_i|^2 + theta_i^2)``, without a regulariser), by block-coordinate
+``1/2 sum_i w_i (|x_i - x~_i|^2 + theta_i^2)``, without a regularizer), by block-coordinate
 descent over the joints.
 
 One sweep:
@@ -15,13 +15,13 @@ One sweep:
    deepest first (a ``lax.scan`` over the levels, padded to the widest, so the compiled program
    does not grow with the depth). For joint ``j`` only the targets whose site lies in ``j``'s subtree count (a
    static mask; joints with no target below them are skipped). The world rotation ``dR`` about
-   ``p_j`` that minimises
+   ``p_j`` that minimizes
 
    ``sum_i w_i |dR (x_i - p_j) - (x~_i - p_j)|^2 + sum_i w_i s^2 (3 - tr(dR R_i R~_i^T))``
 
    (positions, then orientations, ``s = orientation_scale``) is a weighted Wahba problem: with the
    cross-covariance ``B = sum_i w_i (x~_i - p_j)(x_i - p_j)^T + sum_i (w_i s^2 / 2) R~_i R_i^T``
-   and its SVD ``B = U S V^T``, ``dR = U diag(1, 1, det(U V^T)) V^T``. This generalises classic
+   and its SVD ``B = U S V^T``, ``dR = U diag(1, 1, det(U V^T)) V^T``. This generalizes classic
    CCD (rotate the joint-to-effector direction onto the joint-to-target direction) to several
    targets and to orientations. ``B`` gets ``sqrt(eps) |B|_F I`` added so that among equally good
    rotations (one position target: any twist about the aligned direction) the one closest to the
@@ -37,7 +37,7 @@ One sweep:
    (the weighted mean of the position residuals). A frozen root with a free translation takes the
    translation step only.
 
-Each block step is the exact minimiser of the sweep objective ``G`` (the cost with the geodesic
+Each block step is the exact minimizer of the sweep objective ``G`` (the cost with the geodesic
 ``theta^2`` replaced by the chordal ``s^2 (3 - tr(R R~^T)) = 4 s^2 sin^2(theta / 2)``), so ``G``
 never increases (``stats["ccd_cost_history"]``); the reported cost usually decreases too but is
 not guaranteed to. The local rotations are carried as matrices between sweeps and kept orthogonal
@@ -78,11 +78,13 @@ from jax import lax
 
 from solvers import RESULTS
 
+from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
 from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics
-from ._solve import IKSolution, Target, _check_targets
+from ._solve import IKSolution
+from ._targets import Target, _check_targets
 from ..skeleton._skeleton import Skeleton
 
 __all__ = ["solve_ik_ccd"]
@@ -101,36 +103,24 @@ class _Plan:
     def __init__(self, parents, end_site_parents, site_idx, free, free_root):
         J = len(parents)
         S = len(site_idx)
-        depths = []
-        for p in parents:
-            depths.append(0 if p < 0 else depths[p] + 1)
+        depths = _tree.depths(parents)
         self.owner = tuple(s if s < J else end_site_parents[s - J] for s in site_idx)
         # chains[i][d]: the ancestor (or the owner itself) of target i's site at depth d
-        chains = []
-        for j in self.owner:
-            chain = []
-            while j >= 0:
-                chain.append(j)
-                j = parents[j]
-            chains.append(chain[::-1])
-        below = np.zeros((J, S), dtype=bool)  # joint j has target i's site in its subtree
-        for i, chain in enumerate(chains):
-            below[chain, i] = True
+        chains = [_tree.ancestors(parents, j) for j in self.owner]
+        below = _tree.subtree(parents)[:, list(self.owner)]  # joint j has target i's site in its subtree
         self.active = tuple(j for j in range(J) if free[j] and below[j].any())
         self.root_active = 0 in self.active
         self.free_root = free_root
-        levels = [tuple(j for j in self.active if depths[j] == d) for d in range(max(depths), -1, -1)]
-        levels = [lev for lev in levels if lev]
-        width = max((len(lev) for lev in levels), default=0)
-        L = len(levels)
+        # the visited levels, deepest first, padded with joint 0
+        self.level_joints, level_mask = _tree.padded_levels(parents, self.active, deepest_first=True)
+        L, width = self.level_joints.shape
         self.num_levels = L
-        self.level_joints = np.zeros((L, width), dtype=np.int64)  # padded with joint 0
         self.sel = np.zeros((L, width, S))  # sel[l, k, i] = 1: site i is below slot k of level l
         self.which = np.full((L, S), width, dtype=np.int64)  # slot of site i's ancestor, width: none
         self.root_level = np.zeros(L, dtype=bool)  # the root's level with a free translation
         self.slot = {}  # joint -> (level, slot)
-        for lev, joints in enumerate(levels):
-            self.level_joints[lev, : len(joints)] = joints
+        for lev in range(L):
+            joints = tuple(int(j) for j in self.level_joints[lev][level_mask[lev]])
             self.root_level[lev] = free_root and joints == (0,)
             for k, j in enumerate(joints):
                 self.slot[j] = (lev, k)
@@ -153,7 +143,7 @@ def _plan(parents, end_site_parents, site_idx, free, free_root) -> _Plan:
 
 
 def _wahba(B):
-    """Rotations ``[n, 3, 3]`` maximising ``tr(B^T R)`` (minimising ``sum w |R a - b|^2`` for
+    """Rotations ``[n, 3, 3]`` maximizing ``tr(B^T R)`` (minimizing ``sum w |R a - b|^2`` for
     ``B = sum w b a^T``), nearest the identity when the optimum is not unique."""
     dtype = B.dtype
     eps = float(np.sqrt(np.finfo(dtype).eps))
@@ -292,7 +282,7 @@ def solve_ik_ccd(
     """Solve one IK problem by cyclic coordinate descent (see the module docstring).
 
     The arguments mean what they mean for :func:`~jaxanim.ik.solve_ik`; the pose starts at
-    ``(rotations, translations)`` and there is no regulariser, reference pose or pin. Batch over
+    ``(rotations, translations)`` and there is no regularizer, reference pose or pin. Batch over
     characters or frames with ``jax.vmap`` (use ``fixed_sweeps=True`` for large batches).
 
     Args:
@@ -352,7 +342,7 @@ def solve_ik_ccd(
     ident = jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype)
     x_goal = jnp.stack([zeros3 if t.position is None else jnp.asarray(t.position, dtype) for t in targets])
     q_goal = jnp.stack([ident if t.orientation is None else jnp.asarray(t.orientation, dtype) for t in targets])
-    R_goal = rot.quat_to_matrix(q_goal)  # normalises
+    R_goal = rot.quat_to_matrix(q_goal)  # normalizes
     size = jnp.sum(jnp.abs(skeleton.offsets.astype(dtype)))
     ptol = 1e-5 * size if position_tolerance is None else jnp.asarray(position_tolerance, dtype)
     otol = jnp.asarray(orientation_tolerance, dtype)

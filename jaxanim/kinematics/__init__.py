@@ -1,4 +1,4 @@
-"""Forward kinematics, its inverse (global to local), centre of mass, geometric Jacobians and the
+"""Forward kinematics, its inverse (global to local), center of mass, geometric Jacobians and the
 retraction that matches them, joint limits.
 """
 

@@ -1,4 +1,4 @@
-"""Forward kinematics, its inverse (global -> local) and the centre of mass.
+"""Forward kinematics, its inverse (global -> local) and the center of mass.
 
 All functions take **one** pose; batch over characters and frames with ``jax.vmap``.
 
@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
 from .._types import Array, Float
@@ -49,11 +50,8 @@ class _Plan:
     """Static index bookkeeping for the per-level traversal of one tree (cached per structure)."""
 
     def __init__(self, parents: tuple[int, ...]):
-        depths: list[int] = []
-        for p in parents:
-            depths.append(0 if p < 0 else depths[p] + 1)
-        nlev = max(depths) + 1
-        self.levels = [[j for j, d in enumerate(depths) if d == lev] for lev in range(nlev)]
+        self.levels = [list(lev) for lev in _tree.levels(parents)]
+        nlev = len(self.levels)
         self.order = [j for lev in self.levels for j in lev]  # level-major position -> joint
         self.pos = {j: i for i, j in enumerate(self.order)}  # joint -> level-major position
         self.inverse = [self.pos[j] for j in range(len(parents))]
@@ -224,10 +222,10 @@ def global_to_local(
 
 
 def segment_com_offsets(skeleton: Skeleton) -> Float[Array, "joints 3"]:
-    """Default centre of each joint's segment, in the joint's frame.
+    """Default center of each joint's segment, in the joint's frame.
 
-    The segment of joint ``j`` runs from ``j`` to its children (and End Sites); its centre is half
-    the mean of their offsets. A joint with neither has its centre at the joint.
+    The segment of joint ``j`` runs from ``j`` to its children (and End Sites); its center is half
+    the mean of their offsets. A joint with neither has its center at the joint.
     """
     J = skeleton.num_joints
     off = np.asarray(skeleton.offsets, dtype=np.float64)
@@ -241,8 +239,8 @@ def segment_com_offsets(skeleton: Skeleton) -> Float[Array, "joints 3"]:
     for e, p in enumerate(skeleton.end_site_parents):
         acc[p] += es_off[e]
         cnt[p] += 1
-    centre = 0.5 * acc / np.maximum(cnt, 1)[:, None]
-    return jnp.asarray(centre, dtype=skeleton.offsets.dtype)
+    center = 0.5 * acc / np.maximum(cnt, 1)[:, None]
+    return jnp.asarray(center, dtype=skeleton.offsets.dtype)
 
 
 def center_of_mass(
@@ -252,9 +250,9 @@ def center_of_mass(
     masses: Float[Array, " joints"],
     com_offsets: Float[Array, "joints 3"] | None = None,
 ) -> Float[Array, "3"]:
-    """Whole-body centre of mass of one pose.
+    """Whole-body center of mass of one pose.
 
-    ``c = sum_j m_j (p_j + Q_j c_j) / sum_j m_j`` with segment masses ``m_j`` and segment centres
+    ``c = sum_j m_j (p_j + Q_j c_j) / sum_j m_j`` with segment masses ``m_j`` and segment centers
     ``c_j`` in the joint frames.
 
     Args:
@@ -262,11 +260,11 @@ def center_of_mass(
         rotations, translations: the pose, as for :func:`forward_kinematics`.
         masses: ``[joints]`` mass of each joint's segment (any unit; only ratios matter). The total
             must be positive.
-        com_offsets: ``[joints, 3]`` segment centres in the joint frames; default
+        com_offsets: ``[joints, 3]`` segment centers in the joint frames; default
             :func:`segment_com_offsets`.
 
     Returns:
-        ``[3]`` world position of the centre of mass (file units).
+        ``[3]`` world position of the center of mass (file units).
     """
     J = skeleton.num_joints
     check_shape("masses", masses, (J,), what=f"(joints,) = ({J},)")

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
 from .._types import Array, Float
@@ -52,13 +53,9 @@ def _site_indices(skeleton: Skeleton, sites) -> tuple[int, ...]:
 def _site_structure(parents, end_site_parents, site_idx):
     """Static: the joint each site hangs from, and the ancestor mask ``[sites, joints]``."""
     J = len(parents)
-    owner = [s if s < J else end_site_parents[s - J] for s in site_idx]
-    mask = np.zeros((len(site_idx), J), dtype=bool)
-    for i, j in enumerate(owner):
-        while j >= 0:
-            mask[i, j] = True
-            j = parents[j]
-    return tuple(owner), mask
+    owner = tuple(s if s < J else end_site_parents[s - J] for s in site_idx)
+    mask = np.ascontiguousarray(_tree.subtree(parents)[:, list(owner)].T)  # joint j is on site i's chain
+    return owner, mask
 
 
 def jacobian(

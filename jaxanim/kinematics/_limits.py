@@ -205,7 +205,7 @@ def _box_excess(theta: Array, lower: Array, upper: Array) -> Array:
 
 
 def _euler_candidates(q: Array, order: str, lower: Array, upper: Array) -> Array:
-    """The Euler triples of ``q`` (both branches), each wrapped next to the box centre: ``[2, 3]``."""
+    """The Euler triples of ``q`` (both branches), each wrapped next to the box center: ``[2, 3]``."""
     a = rot.quat_to_euler(q, order)
     if order.upper() in _TAIT_BRYAN:
         b = a + jnp.asarray([jnp.pi, 0.0, jnp.pi], a.dtype)
@@ -213,9 +213,9 @@ def _euler_candidates(q: Array, order: str, lower: Array, upper: Array) -> Array
     else:
         b = a + jnp.asarray([jnp.pi, 0.0, jnp.pi], a.dtype)
         b = b.at[1].set(-a[1])
-    centre = 0.5 * (lower + upper)
+    center = 0.5 * (lower + upper)
     cands = jnp.stack([a, b])
-    return centre[None] + _wrap(cands - centre[None])
+    return center[None] + _wrap(cands - center[None])
 
 
 def _euler_from_quat(q: Array, order: str, lower: Array, upper: Array) -> Array:
@@ -310,7 +310,7 @@ class _Chart(eqx.Module):
 
 
 class _ChartGroup(eqx.Module):
-    """Limited joints that share a chart kind and order, vectorised: ``slots`` index the free
+    """Limited joints that share a chart kind and order, vectorized: ``slots`` index the free
     joints' variable blocks; ``chart`` holds the stacked numbers (leading axis: the group)."""
 
     slots: tuple[int, ...] = eqx.field(static=True)
@@ -338,7 +338,7 @@ class _ChartGroup(eqx.Module):
 def _charts(
     skeleton: Skeleton, limits: Sequence[Limit], joint_idx: Sequence[int], slots: Sequence[int], hard: bool, dtype
 ) -> list[_ChartGroup]:
-    """The limited joints' charts, grouped by kind and Euler order (one vectorised call each)."""
+    """The limited joints' charts, grouped by kind and Euler order (one vectorized call each)."""
     groups: dict[tuple, list] = {}
     for lim, j, k in zip(limits, joint_idx, slots):
         if isinstance(lim, EulerLimit):

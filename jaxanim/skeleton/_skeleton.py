@@ -23,6 +23,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _tree
 from .._errors import JaxanimError, check_shape
 from .._types import Array, Float
 
@@ -173,18 +174,12 @@ class Skeleton(eqx.Module):
         return jnp.tile(jnp.array([1.0, 0.0, 0.0, 0.0], dtype=dtype), (self.num_joints, 1))
 
 
-@functools.lru_cache(maxsize=256)
 def _depths(parents: tuple[int, ...]) -> tuple[int, ...]:
-    d = []
-    for p in parents:
-        d.append(0 if p < 0 else d[p] + 1)
-    return tuple(d)
+    return _tree.depths(parents)
 
 
-@functools.lru_cache(maxsize=256)
 def _levels(parents: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
-    depths = _depths(parents)
-    return tuple(tuple(j for j, dj in enumerate(depths) if dj == d) for d in range(max(depths) + 1))
+    return _tree.levels(parents)
 
 
 @functools.lru_cache(maxsize=256)
