@@ -5,7 +5,7 @@ This package knows nothing of skeletons and never imports ``jaxanim``.
 
 from ._sharding import batch_mesh as batch_mesh, batch_sharding as batch_sharding, shard_batch as shard_batch
 from ._results import RESULTS as RESULTS, Solution as Solution
-from .least_squares import (
+from ._least_squares import (
     AbstractLeastSquaresSolver as AbstractLeastSquaresSolver,
     GaussNewton as GaussNewton,
     GradientDescent as GradientDescent,
@@ -14,13 +14,8 @@ from .least_squares import (
     OptimistixSolver as OptimistixSolver,
     least_squares as least_squares,
 )
-from .lqr import (
-    LQRSolution as LQRSolution,
-    RiccatiSolution as RiccatiSolution,
-    care as care,
-    dare as dare,
-    lqr as lqr,
-)
-from .ilqr import TrajectorySolution as TrajectorySolution, ddp as ddp, ilqr as ilqr
+from .lqr import LQRSolution as LQRSolution, lqr as lqr
+from ._riccati import RiccatiSolution as RiccatiSolution, care as care, dare as dare
+from .ilqr import ILQROptions as ILQROptions, TrajectorySolution as TrajectorySolution, ddp as ddp, ilqr as ilqr
 from .mpc import MPCSolution as MPCSolution, mpc as mpc, mpc_step as mpc_step, shift_controls as shift_controls
 from . import problems as problems

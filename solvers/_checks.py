@@ -3,8 +3,8 @@ utilities used inside the traced code."""
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool
 
 
@@ -38,5 +38,25 @@ def _all_finite(*xs: Array) -> Bool[Array, ""]:
     return out
 
 
-def _tree_where(pred: Bool[Array, ""], a, b):
-    return jax.tree.map(lambda x, y: jnp.where(pred, x, y), a, b)
+def _amax(x: Array) -> Array:
+    """``max |x|`` over all entries."""
+    return jnp.max(jnp.abs(x))
+
+
+def _check_shape(name: str, x: Array, dims: tuple[str, ...], sizes: dict[str, int]) -> None:
+    """Raise unless ``x.shape`` is ``dims`` with the ``sizes``: ``B: expected shape (n, m) = (4, 2), got (4, 3)``."""
+    expected = tuple(sizes[d] for d in dims)
+    if x.shape != expected:
+        names = "(" + ", ".join(dims) + ("," if len(dims) == 1 else "") + ")"
+        raise ValueError(f"{name}: expected shape {names} = {_fmt(expected)}, got {_fmt(x.shape)}")
+
+
+def _check_int(name: str, value, minimum: int) -> None:
+    """Raise unless ``value`` is an int (not a bool) ``>= minimum``."""
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < minimum:
+        raise ValueError(f"{name}: expected an int >= {minimum}, got {value!r}")
+
+
+def _common_dtype(*xs: Array):
+    """The promoted dtype of the arrays that are not ``None``."""
+    return jnp.result_type(*[x.dtype for x in xs if x is not None])

@@ -1,8 +1,8 @@
-"""Small dense Cholesky factorisation, solves and products for the sequential passes of LQR / iLQR / DDP.
+"""Small dense Cholesky factorization, solves and products for the sequential passes of LQR / iLQR / DDP.
 
 Inside a ``lax.scan`` over time steps each LAPACK custom call (``potrf``, ``trsm``) costs about a
 microsecond of dispatch on XLA:CPU, more than the arithmetic of a 2x2 or 4x4 system. For
-``m <= UNROLL_MAX`` these functions write the factorisation and the triangular solves out as scalar
+``m <= UNROLL_MAX`` these functions write the factorization and the triangular solves out as scalar
 and row-vector arithmetic (static Python loops), which XLA fuses; larger systems use
 ``jnp.linalg.cholesky`` / ``jax.scipy.linalg.cho_solve``. Both paths return NaN factors for a matrix
 that is not positive definite, like ``jnp.linalg.cholesky``.

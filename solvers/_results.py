@@ -26,24 +26,24 @@ class RESULTS(eqx.Enumeration):
     )
     singular = (
         "The normal equations are singular or too ill-conditioned to give a descent step: use "
-        "LevenbergMarquardt (damping), add regularisation residuals, or remove redundant "
+        "LevenbergMarquardt (damping), add regularization residuals, or remove redundant "
         "variables."
     )
     not_positive_definite = (
         "The control Hessian Q_uu = R_t + B_t^T P_{t+1} B_t of the LQ subproblem is not positive "
         "definite at some time step t, or a non-finite value (NaN or inf) appeared, so there is no "
-        "unique minimiser over the controls: make R_t positive definite, regularise (add mu * I to "
+        "unique minimizer over the controls: make R_t positive definite, regularize (add mu * I to "
         "R_t), and check that the inputs are finite."
     )
     no_descent = (
-        "No acceptable step was found: the regularisation of the control Hessian Q_uu reached its "
+        "No acceptable step was found: the regularization of the control Hessian Q_uu reached its "
         "maximum while the backward pass kept failing or the line search rejected every step "
         "size. Check that the cost is bounded below and that `dynamics`/`cost` are smooth and "
         "finite near the trajectory, or start from a better `us_init`."
     )
     no_stabilising_solution = (
-        "No stabilising solution of the algebraic Riccati equation was found: (A, B) is not "
-        "stabilisable, an unstable mode is not seen by the cost (Q, after removing the cross term "
+        "No stabilizing solution of the algebraic Riccati equation was found: (A, B) is not "
+        "stabilizable, an unstable mode is not seen by the cost (Q, after removing the cross term "
         "S, must weight every unstable mode), R is not positive definite, or the inputs are not "
         "finite. Check rank [A - lambda I, B] = n for every unstable eigenvalue lambda of A."
     )

@@ -29,11 +29,12 @@ from jaxtyping import Array, ArrayLike, Float, Int, PyTree
 
 from ._checks import _fmt
 from ._results import RESULTS
-from .ilqr import Dynamics, StageCost, TerminalCost, TrajectorySolution, ddp, ilqr
+from .ilqr import Dynamics, ILQROptions, StageCost, TerminalCost, TrajectorySolution, _options, ddp, ilqr
 
 __all__ = ["MPCSolution", "mpc", "mpc_step", "shift_controls"]
 
 _METHODS = {"ilqr": ilqr, "ddp": ddp}
+_MPC_DEFAULTS = dict(max_steps=10, fixed_steps=True, rtol=None, atol=1e-12)
 
 
 class MPCSolution(eqx.Module):
@@ -104,6 +105,7 @@ def mpc_step(
     fixed_steps: bool = True,
     rtol: float | None = None,
     atol: float = 1e-12,
+    options: ILQROptions | None = None,
 ) -> tuple[Float[Array, " m"], Float[Array, "T m"], TrajectorySolution]:
     """One receding-horizon step at absolute time ``t`` from the measured state ``x``.
 
@@ -117,6 +119,8 @@ def mpc_step(
         method: ``"ilqr"`` or ``"ddp"``.
         max_steps, fixed_steps, rtol, atol: the solver's; by default exactly ``max_steps = 10``
             iterations (a finished solve is frozen), the usual real-time setting.
+        options: an :class:`~solvers.ILQROptions` instead of ``max_steps``, ``fixed_steps``,
+            ``rtol`` and ``atol`` (passing both is an error).
 
     Returns:
         ``(u, us_next, solution)``: the control to apply ``[m]`` (the plan's first), the warm start
@@ -124,11 +128,12 @@ def mpc_step(
         times are relative to ``t``).
     """
     solve = _method(method)
+    options = _options(options, _MPC_DEFAULTS, max_steps=max_steps, fixed_steps=fixed_steps, rtol=rtol, atol=atol)
     packed = (jnp.asarray(t), args)
     term = None if terminal_cost is None else _Terminal(terminal_cost)
     sol = solve(
         _Shifted(dynamics), _Shifted(cost), x, us_warm, terminal_cost=term, args=packed, bounds=bounds,
-        max_steps=max_steps, fixed_steps=fixed_steps, rtol=rtol, atol=atol,
+        options=options,
     )
     return sol.us[0], shift_controls(sol.us), sol
 
@@ -150,6 +155,7 @@ def mpc(
     fixed_steps: bool = True,
     rtol: float | None = None,
     atol: float = 1e-12,
+    options: ILQROptions | None = None,
 ) -> MPCSolution:
     """Run ``steps`` receding-horizon control steps from ``x0`` (see the module docstring).
 
@@ -162,7 +168,7 @@ def mpc(
         plant: ``plant(x, u, t, plant_args) -> x_next`` that the controls are applied to (default:
             ``dynamics`` with ``args``), e.g. a model with other parameters or disturbances.
         plant_args: the plant's ``args`` (default: ``args``).
-        method, max_steps, fixed_steps, rtol, atol: see :func:`mpc_step`.
+        method, max_steps, fixed_steps, rtol, atol, options: see :func:`mpc_step`.
 
     Returns:
         An :class:`MPCSolution`. Jitted; ``jax.vmap`` over ``x0`` (or ``args``) batches
@@ -173,6 +179,7 @@ def mpc(
             ``method`` is unknown.
     """
     _method(method)
+    options = _options(options, _MPC_DEFAULTS, max_steps=max_steps, fixed_steps=fixed_steps, rtol=rtol, atol=atol)
     x0 = jnp.asarray(x0)
     us_init = jnp.asarray(us_init)
     if x0.ndim != 1:
@@ -185,15 +192,13 @@ def mpc(
         plant, plant_args = dynamics, (args if plant_args is None else plant_args)
     elif plant_args is None:
         plant_args = args
-    return _mpc(
-        dynamics, cost, terminal_cost, plant, x0, us_init, args, plant_args, bounds, steps, method, max_steps,
-        fixed_steps, rtol, atol,
-    )
+    return _mpc(dynamics, cost, terminal_cost, plant, x0, us_init, args, plant_args, bounds, steps, method, options)
 
 
 @eqx.filter_jit
-def _mpc(dynamics, cost, terminal_cost, plant, x0, us_init, args, plant_args, bounds, steps, method, max_steps,
-         fixed_steps, rtol, atol) -> MPCSolution:
+def _mpc(
+    dynamics, cost, terminal_cost, plant, x0, us_init, args, plant_args, bounds, steps, method, options
+) -> MPCSolution:
     dtype = jnp.result_type(x0.dtype, us_init.dtype, float)
     x0 = x0.astype(dtype)
     us_init = us_init.astype(dtype)
@@ -202,7 +207,7 @@ def _mpc(dynamics, cost, terminal_cost, plant, x0, us_init, args, plant_args, bo
         x, us_warm = carry
         u, us_next, sol = mpc_step(
             dynamics, cost, x, us_warm, k, terminal_cost=terminal_cost, args=args, bounds=bounds, method=method,
-            max_steps=max_steps, fixed_steps=fixed_steps, rtol=rtol, atol=atol,
+            options=options,
         )
         x_next = plant(x, u, k, plant_args).astype(dtype)
         out = (x_next, u, sol.cost, sol.result._value, sol.stats["num_steps"])

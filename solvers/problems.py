@@ -5,7 +5,7 @@ Every nonlinear problem is a :class:`ControlProblem`: module-level callbacks (so
 reuse one compilation) and arrays (``x0``, ``us_init`` and the ``args`` dict of physical constants,
 cost weights and the goal), so ``jax.vmap`` sweeps over initial states, masses or weights without
 recompiling. All use explicit (forward) Euler, ``x_{t+1} = x_t + dt * xdot(x_t, u_t)`` (the
-double integrator and the unicycle are exact discretisations), and the quadratic cost
+double integrator and the unicycle are exact discretizations), and the quadratic cost
 
 .. math::
     \ell(x, u) = \tfrac12 (x - g)^\top \mathrm{diag}(Q) (x - g) + \tfrac12 u^\top \mathrm{diag}(R) u,
@@ -227,7 +227,7 @@ def double_integrator(
 ) -> ControlProblem:
     """A point mass in ``dim`` dimensions driven by its acceleration, brought to rest at 0.
 
-    ``x = [p (dim), v (dim)]``, ``u = a``; the exact zero-order-hold discretisation
+    ``x = [p (dim), v (dim)]``, ``u = a``; the exact zero-order-hold discretization
     ``p+ = p + dt v + dt^2 a / 2``, ``v+ = v + dt a``. Linear-quadratic: iLQR and DDP solve it in one
     iteration. Default ``x0`` is 1 in every coordinate.
     """

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 
 import jax
@@ -76,3 +77,26 @@ def bench_rows(tables, name: str):
     """The table called ``name`` and its rows by ``(implementation, batch)``."""
     (table,) = [t for t in tables if t.name == name]
     return table, {(r.implementation, r.batch): r for r in table.rows}
+
+
+_TRACE_EVENT = "/jax/core/compile/jaxpr_trace_duration"
+
+
+@contextlib.contextmanager
+def count_traces():
+    """Count the jaxprs that JAX traces inside the block (a retrace of a jitted function is one).
+
+    ``with count_traces() as traces: f(x)``, then ``traces[0]`` is the count (through
+    ``jax.monitoring``'s trace-duration event, so it sees every jit, including nested ones).
+    """
+    traces = [0]
+
+    def listener(event, duration, **kwargs):
+        if event == _TRACE_EVENT:
+            traces[0] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield traces
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)

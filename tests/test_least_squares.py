@@ -21,9 +21,10 @@ import scipy.optimize
 
 import solvers
 from solvers import RESULTS, GaussNewton, JaxoptSolver, LevenbergMarquardt, OptimistixSolver, least_squares
-from solvers.least_squares import _Problem, _solve_normal
+from solvers._ls_base import _solve_normal
+from solvers._ls_problem import _Problem
 
-from .helpers import assert_close
+from .helpers import assert_close, count_traces
 
 _ATOL_MIN = 1e-6  # distance to a known minimum, any backend (default-ish tolerances)
 _ATOL_SCIPY = 1e-8  # own solvers against scipy, float64, tight tolerances
@@ -160,6 +161,20 @@ def test_own_solvers_match_scipy(problem, solver):
     sol = solve(problem, solver)
     assert_close(f"{problem}/{solver} vs scipy lm: x", sol.value, ref.x, atol=_ATOL_SCIPY)
     assert_close(f"{problem}/{solver} vs scipy lm: cost", sol.stats["cost"], ref.cost, atol=_ATOL_SCIPY)
+
+
+def test_second_eager_call_does_not_retrace():
+    # Same fn, shapes and static solver settings, a new y0 and a new solver instance (its
+    # tolerances are arrays): the compiled solve of the catalogue test is reused.
+    p = PROBLEMS["rosenbrock"]
+    first = solve("rosenbrock", "lm")
+    y0 = jnp.asarray([-1.0, 1.5])
+    solver = SOLVERS["lm"]()
+    with count_traces() as traces:
+        sol = least_squares(p.fn, solver, y0)
+    assert traces[0] == 0, f"{traces[0]} traces on the second call"
+    assert sol.result == RESULTS.successful
+    assert_close("value", sol.value, first.value, atol=_ATOL_SCIPY)
 
 
 def test_gauss_newton_solves_a_linear_problem_in_one_step():

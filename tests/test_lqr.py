@@ -20,7 +20,7 @@ import solvers
 from solvers import RESULTS, care, dare, lqr
 
 from .conftest import shared_data_dir
-from .helpers import assert_close
+from .helpers import assert_close, count_traces
 
 _TOL_REF = 1e-9  # against the scipy/SLICOT reference values (relative and absolute)
 _TOL_KKT = 1e-9  # finite-horizon LQR against the dense KKT solve
@@ -303,7 +303,7 @@ def test_unstabilisable_gives_status_under_vmap(continuous):
     Q0 = np.diag([0.0, 1.0, 1.0])
     assert solve(A[1], B[1], Q0, R[1]).result != RESULTS.successful
     if not continuous:  # (one throw test is enough: it compiles another function)
-        with pytest.raises(eqx.EquinoxRuntimeError, match="stabilising"):
+        with pytest.raises(eqx.EquinoxRuntimeError, match="stabilizing"):
             solve(A[1], B[1], Q[1], R[1], throw=True)
 
 
@@ -423,3 +423,19 @@ def test_bad_shapes_raise():
 def test_exports():
     assert solvers.lqr is lqr and solvers.dare is dare and solvers.care is care
     assert solvers.LQRSolution.__name__ == "LQRSolution" and solvers.RiccatiSolution.__name__ == "RiccatiSolution"
+
+
+def test_second_eager_call_does_not_retrace():
+    # Same shapes and static options, new values: lqr and dare reuse their compilations (the shapes
+    # of test_lqr_matches_dense_kkt and test_dare_matches_scipy, so nothing new is compiled either).
+    first, second = random_lq_problem(0), random_lq_problem(1)
+    kw = ("S", "q", "r", "qT", "c")
+    lqr(*(first[k] for k in ("A", "B", "Q", "R", "QT", "x0")), **{k: first[k] for k in kw})
+    A1, B1, Q1, R1, S1 = random_system(0, 12, 4, cross=True)
+    dare(A1, B1, Q1, R1, S=S1)
+    A2, B2, Q2, R2, S2 = random_system(1, 12, 4, cross=True)
+    with count_traces() as traces:
+        sol = lqr(*(second[k] for k in ("A", "B", "Q", "R", "QT", "x0")), **{k: second[k] for k in kw})
+        ric = dare(A2, B2, Q2, R2, S=S2)
+    assert traces[0] == 0, f"{traces[0]} traces on the second calls"
+    assert sol.result == RESULTS.successful and ric.result == RESULTS.successful

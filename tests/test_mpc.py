@@ -1,6 +1,7 @@
 """Tests of solvers.mpc / mpc_step: the receding-horizon controller of an LQ problem whose terminal
 cost is the DARE solution is the DARE feedback (scipy), the jitted scan equals a Python loop of
-warm-started mpc_step calls, vmap equals a loop, and the pendulum is swung up and held."""
+warm-started mpc_step calls, vmap equals a loop, the pendulum is swung up and held, and plant=
+simulates on another model (against a loop of mpc_step + that plant)."""
 
 from __future__ import annotations
 
@@ -85,6 +86,36 @@ def test_mpc_equals_loop_of_warm_started_steps(pendulum_mpc):
         np.testing.assert_allclose(us_warm[:-1], plan.us[1:], atol=0, rtol=0)
         x = problem.dynamics(x, u, k, problem.args)
         np.testing.assert_allclose(x, batched.xs[i, k + 1], atol=1e-10, rtol=0, err_msg=f"step {k}: x")
+
+
+def _heavier_pendulum(x, u, t, args):
+    """The plant of the model-mismatch test: the pendulum with a 30 % heavier bob (and a Python
+    function of its own, so ``plant=`` is a different callable from the model's)."""
+    return problems.pendulum().dynamics(x, u, t, {**args, "mass": 1.3 * args["mass"]})
+
+
+def test_mpc_plant_is_a_different_model(pendulum_mpc):
+    # README: `plant=` simulates the controls on a different model than the one planned with. The
+    # closed loop then differs from the one without plant= (the fixture's), and equals a hand-written
+    # loop of mpc_step (planning on the model) + the plant.
+    problem, x0s, batched = pendulum_mpc
+    i, steps = 1, 10
+    sol = solvers.mpc(
+        problem.dynamics, problem.cost, x0s[i], problem.us_init, steps=steps, terminal_cost=problem.terminal_cost,
+        args=problem.args, plant=_heavier_pendulum, max_steps=8,
+    )
+    assert sol.result == RESULTS.successful
+    gap = float(np.max(np.abs(np.asarray(sol.xs) - np.asarray(batched.xs[i, : steps + 1]))))
+    assert gap > 1e-3, f"plant= had no effect on the closed loop (max |dx| = {gap})"
+    x, us_warm = x0s[i], problem.us_init
+    for k in range(steps):
+        u, us_warm, _ = solvers.mpc_step(
+            problem.dynamics, problem.cost, x, us_warm, k, terminal_cost=problem.terminal_cost, args=problem.args,
+            max_steps=8,
+        )
+        np.testing.assert_allclose(u, sol.us[k], atol=1e-10, rtol=0, err_msg=f"step {k}: u")
+        x = _heavier_pendulum(x, u, k, problem.args)
+        np.testing.assert_allclose(x, sol.xs[k + 1], atol=1e-10, rtol=0, err_msg=f"step {k}: x")
 
 
 def test_mpc_bad_input():
