@@ -15,8 +15,9 @@ floating leaf holding a NaN or an inf; ``finite=`` replaces the test) is not tak
 stops there with ``nonfinite=True`` and keeps its last finite state, so a solver built on the
 driver never returns NaN from finite input. The guard also looks at the initial state: a
 non-finite ``init`` stops before the first step. And it collects the **stats**: the number of
-steps taken and, with ``record=``, a fixed-length history of a scalar (``[max_steps + 1]``, entry
-``k`` after ``k`` steps, padded with the final value), as jaxls's ``cost_history``.
+steps taken and, with ``record=``, a fixed-length history of a scalar, or of a pytree of arrays
+(``[max_steps + 1, ...]``, entry ``k`` after ``k`` steps, padded with the final value), as jaxls's
+``cost_history``.
 
 The loop state is an :class:`Iteration` (an ``equinox.Module``), and so is the solver's own
 state: no tuples. Usage, for a solver outside ``solvers`` too (the API is private to the project,
@@ -45,7 +46,7 @@ from typing import Generic, TypeVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Int, PyTree
 
 __all__ = ["Iteration", "all_finite", "iterate"]
 
@@ -73,14 +74,15 @@ class Iteration(eqx.Module, Generic[State]):
         nonfinite: the guard stopped the loop: the initial state, or the state that a step
             produced, was not finite.
         history: ``[max_steps + 1]`` the recorded scalar after ``0, 1, ...`` steps, padded with
-            its final value (``None`` without ``record``).
+            its final value (``None`` without ``record``); a pytree of such arrays when ``record``
+            returns a pytree.
     """
 
     state: State
     num_steps: Int[Array, ""]
     done: Bool[Array, ""]
     nonfinite: Bool[Array, ""]
-    history: Float[Array, " max_steps+1"] | None
+    history: Float[Array, " max_steps+1"] | PyTree | None
 
     @property
     def converged(self) -> Bool[Array, ""]:
@@ -100,7 +102,7 @@ def iterate(
     max_steps: int,
     fixed_steps: bool = False,
     finite: Callable[[State], Bool[Array, ""]] | None = all_finite,
-    record: Callable[[State], Float[Array, ""]] | None = None,
+    record: Callable[[State], Float[Array, ""] | PyTree] | None = None,
 ) -> Iteration[State]:
     """Iterate ``step`` from ``init`` until ``done`` holds, at most ``max_steps`` times.
 
@@ -115,7 +117,8 @@ def iterate(
         finite: ``state -> bool``, the non-finite guard's test (default :func:`all_finite`);
             ``None`` turns the guard off (then a solver must stop on non-finite values itself,
             through ``done``).
-        record: optional ``state -> scalar`` whose values form ``Iteration.history``.
+        record: optional ``state -> scalar`` (or a pytree of arrays) whose values form
+            ``Iteration.history``.
 
     Returns:
         An :class:`Iteration` ``(state, num_steps, done, nonfinite, history)``.
@@ -123,7 +126,7 @@ def iterate(
     bad0 = jnp.array(False) if finite is None else jnp.invert(jnp.asarray(finite(init), bool))
     history = None
     if record is not None:
-        history = jnp.full((max_steps + 1,), record(init))
+        history = jax.tree.map(lambda v: jnp.broadcast_to(v, (max_steps + 1, *jnp.shape(v))), record(init))
     it0 = Iteration(
         state=init,
         num_steps=jnp.zeros((), jnp.int32),
@@ -142,7 +145,7 @@ def iterate(
             state = _select(bad, it.state, new)
         hist = it.history
         if record is not None:
-            hist = hist.at[k].set(record(state))
+            hist = jax.tree.map(lambda h, v: h.at[k].set(v), hist, record(state))
         finished = jnp.asarray(done(state), bool) | bad
         return Iteration(state=state, num_steps=k, done=finished, nonfinite=bad, history=hist)
 
@@ -155,8 +158,10 @@ def iterate(
     else:
         it = jax.lax.while_loop(lambda it: jnp.invert(it.done) & (it.num_steps < max_steps), body, it0)
     if record is not None:
-        final = record(it.state)
-        it = eqx.tree_at(
-            lambda i: i.history, it, jnp.where(jnp.arange(max_steps + 1) <= it.num_steps, it.history, final)
-        )
+        kept = jnp.arange(max_steps + 1) <= it.num_steps
+
+        def pad(h, final):
+            return jnp.where(kept.reshape((-1,) + (1,) * jnp.ndim(final)), h, final)
+
+        it = eqx.tree_at(lambda i: i.history, it, jax.tree.map(pad, it.history, record(it.state)))
     return it

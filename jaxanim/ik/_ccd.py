@@ -77,12 +77,13 @@ import numpy as np
 from jax import lax
 
 from solvers import RESULTS
+from solvers._iterate import iterate
 
 from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
-from .._types import Array, Float
-from ..kinematics._fk import forward_kinematics
+from .._types import Array, Bool, Float
+from ..kinematics._fk import FKResult, forward_kinematics
 from ._solve import IKSolution
 from ._targets import Target, _check_targets
 from ..skeleton._skeleton import Skeleton
@@ -247,6 +248,64 @@ def _evaluate(x, R_s, x_goal, R_goal, w, has_pos, has_ori, scale2):
 # --- the public function ----------------------------------------------------------------------------
 
 
+class _State(eqx.Module):
+    """One CCD iterate: the pose, its forward kinematics and its evaluation."""
+
+    R_local: Float[Array, "joints 3 3"]
+    t: Float[Array, "joints 3"]
+    fk: FKResult
+    x: Float[Array, "sites 3"]  # site positions
+    R_sites: Float[Array, "sites 3 3"]  # orientations of the sites' joints
+    cost: Float[Array, ""]
+    ccd_cost: Float[Array, ""]
+    ccd_cost_prev: Float[Array, ""]  # before the last sweep (equal to ccd_cost before the first)
+    pe: Float[Array, " sites"]
+    oe: Float[Array, " sites"]
+    first: bool | Bool[Array, ""]  # no sweep taken yet
+
+
+class _Problem(eqx.Module):
+    """Everything one solve's sweeps need: the static plan and the targets as arrays."""
+
+    skeleton: Skeleton
+    plan: _Plan = eqx.field(static=True)
+    site_idx: tuple[int, ...] = eqx.field(static=True)
+    owner: tuple[int, ...] = eqx.field(static=True)  # the joint of each site
+    x_goal: Array
+    R_goal: Array
+    w: Array
+    has_pos: tuple[bool, ...] = eqx.field(static=True)
+    has_ori: tuple[bool, ...] = eqx.field(static=True)
+    scale2: Array
+    w_pos: Array
+    w_ori_half: Array
+    ptol: Array
+    otol: Array
+    rtol: Array
+
+    def state(self, R_local, t, *, first, ccd_cost_prev=None) -> _State:
+        """The pose ``(R_local, t)`` with its FK (one pass) and evaluation."""
+        out = forward_kinematics(self.skeleton, R_local, t)
+        x = out.site_positions()[np.asarray(self.site_idx)]
+        R_sites = out.rotations[np.asarray(self.owner)]
+        cost, G, pe, oe = _evaluate(x, R_sites, self.x_goal, self.R_goal, self.w, np.asarray(self.has_pos),
+                                    np.asarray(self.has_ori), self.scale2)
+        return _State(R_local, t, out, x, R_sites, cost, G, G if ccd_cost_prev is None else ccd_cost_prev, pe, oe,
+                      jnp.asarray(first))
+
+    def sweep(self, s: _State) -> _State:
+        """One sweep from ``s`` (using its FK), then the new pose's FK and evaluation."""
+        R_new, t_new = _sweep(self.skeleton, self.plan, s.fk, s.R_local, s.t, s.x, s.R_sites, self.x_goal, self.R_goal,
+                              self.w_pos, self.w_ori_half)
+        return self.state(R_new, t_new, first=False, ccd_cost_prev=s.ccd_cost)
+
+    def done(self, s: _State):
+        """Every target within its tolerance, or the sweep no longer lowers the CCD cost."""
+        met = jnp.all(s.pe <= self.ptol) & jnp.all(s.oe <= self.otol)
+        stalled = jnp.invert(s.first) & (s.ccd_cost_prev - s.ccd_cost <= self.rtol * s.ccd_cost_prev)
+        return met | stalled
+
+
 def _validate(skeleton, targets, frozen, root_translation, max_sweeps):
     if not isinstance(skeleton, Skeleton):
         raise JaxanimError(f"skeleton: expected a jaxanim.Skeleton, got {type(skeleton).__name__}")
@@ -349,59 +408,20 @@ def solve_ik_ccd(
     scale = 0.05 * size if orientation_scale is None else jnp.asarray(orientation_scale, dtype)
     scale2 = scale * scale
     w_pos = jnp.where(has_pos, w, 0.0)
-    site_arr, owner_arr = np.asarray(site_idx), np.asarray(plan.owner)
     w_ori_half = jnp.where(has_ori, 0.5 * w * scale2, 0.0)
 
-    def evaluate(out):
-        x = out.site_positions()[site_arr]
-        R_s = out.rotations[owner_arr]
-        return (x, R_s), _evaluate(x, R_s, x_goal, R_goal, w, has_pos, has_ori, scale2)
-
-    # Each iteration evaluates the current pose from one FK, stops or sweeps from that same FK,
-    # so the loop runs sweeps + 1 times and the last evaluation is the reported one.
-    def step(state):
-        k, R_loc, t, G_prev, done, result, hist, ghist, cost, pe, oe = state
-        out = forward_kinematics(skeleton, R_loc, t)
-        (x, R_s), (cost_c, G_c, pe_c, oe_c) = evaluate(out)
-        finite = jnp.isfinite(G_c) & jnp.isfinite(cost_c)
-        met = jnp.all(pe_c <= ptol) & jnp.all(oe_c <= otol)
-        stalled = (k > 0) & (G_prev - G_c <= rtol * G_prev)
-        stop = ~finite | met | stalled | (k >= max_sweeps)
-        R_new, t_new = _sweep(skeleton, plan, out, R_loc, t, x, R_s, x_goal, R_goal, w_pos, w_ori_half)
-        swept_ok = jnp.all(jnp.isfinite(R_new)) & jnp.all(jnp.isfinite(t_new))
-        live = ~done  # masked once finished (lax.scan, and vmapped while_loop alike)
-        accept = live & ~stop & swept_ok
-        res_now = RESULTS.where(
-            ~finite | (~stop & ~swept_ok),
-            RESULTS.nonfinite,
-            RESULTS.where(met | stalled, RESULTS.successful, RESULTS.max_steps_reached),
-        )
-        result = RESULTS.where(live, res_now, result)
-        hist = jnp.where(live, hist.at[k].set(cost_c), hist)
-        ghist = jnp.where(live, ghist.at[k].set(G_c), ghist)
-        cost, pe, oe = (jnp.where(live, a, b) for a, b in ((cost_c, cost), (pe_c, pe), (oe_c, oe)))
-        G_prev = jnp.where(live, G_c, G_prev)
-        R_loc = jnp.where(accept, R_new, R_loc)
-        t = jnp.where(accept, t_new, t)
-        k = jnp.where(accept, k + 1, k)
-        done = done | (live & ~accept)
-        return (k, R_loc, t, G_prev, done, result, hist, ghist, cost, pe, oe)
-
-    S = len(targets)
-    nan = jnp.asarray(jnp.nan, dtype)
-    state0 = (
-        jnp.asarray(0), rot.quat_to_matrix(q0), t0, nan, jnp.asarray(False), RESULTS.successful,
-        jnp.zeros(max_sweeps + 1, dtype), jnp.zeros(max_sweeps + 1, dtype), nan,
-        jnp.zeros(S, dtype), jnp.zeros(S, dtype),
-    )
-    if fixed_sweeps:
-        state, _ = lax.scan(lambda s, _: (step(s), None), state0, None, length=max_sweeps + 1)
-    else:
-        state = lax.while_loop(lambda s: ~s[4], step, state0)
-    k, R_loc, t, G, _, result, hist, ghist, cost, pe, oe = state
-    after = jnp.arange(max_sweeps + 1) > k
-    hist = jnp.where(after, cost, hist)
-    ghist = jnp.where(after, G, ghist)
+    problem = _Problem(skeleton, plan, tuple(site_idx), tuple(plan.owner), x_goal, R_goal, w, tuple(has_pos.tolist()),
+                       tuple(has_ori.tolist()), scale2,
+                       w_pos, w_ori_half, ptol, otol, jnp.asarray(rtol, dtype))
+    it = iterate(problem.sweep, problem.state(rot.quat_to_matrix(q0), t0, first=True), done=problem.done,
+                 max_steps=max_sweeps, fixed_steps=fixed_sweeps, record=lambda s: (s.cost, s.ccd_cost))
+    state = it.state
+    R_loc, t, cost, G, pe, oe = state.R_local, state.t, state.cost, state.ccd_cost, state.pe, state.oe
+    hist, ghist = it.history
+    # a sweep that the non-finite guard rejected is not counted
+    k = it.num_steps - (it.nonfinite & (it.num_steps > 0)).astype(it.num_steps.dtype)
+    result = RESULTS.where(it.nonfinite, RESULTS.nonfinite,
+                           RESULTS.where(it.done, RESULTS.successful, RESULTS.max_steps_reached))
     # frozen joints (and joints with no target below them) keep exactly the rotations given
     moved = np.asarray(plan.active, dtype=np.int64)
     q = q0.at[moved].set(rot.matrix_to_quat(R_loc[moved])) if len(moved) else q0
