@@ -118,6 +118,94 @@ def _radius(name: str, length: float, height: float, ratio: float) -> float:
     return float(np.clip(ratio * length, 0.025 * height, 0.07 * height))
 
 
+def _body_shapes(skeleton: Skeleton, p_world, R_world, unit: float, H: float, *, radius_ratio, min_length,
+                 foot_names, heel, sole_fit):
+    """The bodies of the joints with a segment, in the build pose ``(p_world [joints, 3] (meters),
+    R_world [joints, 3, 3])``: ``(body_joint, shapes, centers [3] in the joint frames, rotations
+    (quaternions) in the joint frames)`` (see the module docstring).
+
+    Raises:
+        JaxanimError: no segment is longer than ``min_length``.
+    """
+    J = skeleton.num_joints
+    up = np.array([0.0, 1.0, 0.0])
+    # Bodies: shapes in the joint frames (meters).
+    body_joint, shapes, centers, body_rots = [], [], [], []
+    soles = []  # (body, bottom height in the build pose)
+    for j in range(J):
+        seg = _segments(skeleton, j) * unit
+        lengths = np.linalg.norm(seg, axis=1)
+        seg = seg[lengths > min_length * H]
+        if seg.shape[0] == 0:
+            continue
+        mean = seg.mean(axis=0)
+        if np.linalg.norm(mean) > 0.5 * np.linalg.norm(seg, axis=1).mean():
+            d, L = mean / np.linalg.norm(mean), float(np.linalg.norm(mean))
+        else:  # children spread symmetrically: along the longest
+            k = int(np.argmax(np.linalg.norm(seg, axis=1)))
+            L = float(np.linalg.norm(seg[k]))
+            d = seg[k] / L
+        r = _radius(skeleton.names[j], L, H, radius_ratio)
+        body_joint.append(j)
+        is_foot = any(s in skeleton.names[j] for s in foot_names)
+        s_w = R_world[j] @ (L * d)  # the segment in the build pose
+        s_h = s_w - (s_w @ up) * up
+        if is_foot and np.linalg.norm(s_h) > 0.5 * L:
+            # A sole: a box lying flat in the build pose along the segment's heading, its bottom
+            # 0.6 r below the segment's lower end; a foot (not a toe) reaches `heel` of its length
+            # behind the joint.
+            Lh = float(np.linalg.norm(s_h))
+            parent = skeleton.parents[j]
+            back = heel * Lh if parent < 0 or not any(s in skeleton.names[parent] for s in foot_names) else 0.0
+            z = s_h / Lh
+            shapes.append(["box", [2 * r, 1.2 * r, Lh + back]])
+            centers.append(0.5 * (Lh - back) * z + min(0.0, float(s_w @ up)) * up)  # world, fixed below
+            body_rots.append(np.stack([np.cross(up, z), up, z], axis=1))  # world; local below
+            soles.append((len(body_joint) - 1, float(p_world[j] @ up + centers[-1] @ up) - 0.6 * r))
+            continue
+        if is_foot:
+            shapes.append(("box", (2 * r, 1.2 * r, L)))
+        else:
+            shapes.append(("capsule", (r, max(L - 2 * r, 0.2 * L))))
+        centers.append(0.5 * L * d)
+        body_rots.append(d)  # the capsule's axis; a rotation below
+    # Soles within `sole_fit` above the lowest one reach down to it (mocap feet are rarely level).
+    level = min((h for _, h in soles), default=0.0)
+    for b, h in soles:
+        gap = h - level if h - level <= sole_fit else 0.0
+        shapes[b][1][1] += gap
+        j = body_joint[b]
+        centers[b] = R_world[j].T @ (centers[b] - 0.5 * gap * up)
+        body_rots[b] = R_world[j].T @ body_rots[b]
+        shapes[b] = (shapes[b][0], tuple(shapes[b][1]))
+    if not body_joint:
+        raise JaxanimError("skeleton: no segment longer than min_length; nothing to simulate")
+    # Body orientations in their joints' frames, each kind in one call.
+    quats = np.zeros((len(body_joint), 4))
+    sole = np.array([np.ndim(R) == 2 for R in body_rots])
+    if sole.any():
+        quats[sole] = np.asarray(_matrix_to_quat(jnp.asarray(np.stack([R for R in body_rots if np.ndim(R) == 2]))))
+    if (~sole).any():
+        axes = jnp.asarray(np.stack([d for d in body_rots if np.ndim(d) == 1]))
+        quats[~sole] = np.asarray(_rotation_between(jnp.array([0.0, 0.0, 1.0]), axes))
+    body_rots = list(quats)
+    return body_joint, shapes, centers, body_rots
+
+
+def _joint_specs(skeleton: Skeleton, body_joint, joint_body, masses, p_world) -> list[dict]:
+    """Ball joints to the nearest bodied ancestor, at the joints' positions; top-level bodies hang
+    off the heaviest one (the root body, left free)."""
+    top = [b for b, j in enumerate(body_joint) if skeleton.parents[j] < 0 or joint_body[skeleton.parents[j]] < 0]
+    root = max(top, key=lambda b: masses[b])
+    specs = []
+    for b, j in enumerate(body_joint):
+        if b == root:
+            continue
+        parent = root if b in top else joint_body[skeleton.parents[j]]
+        specs.append(dict(name=skeleton.names[j], type="ball", parent=int(parent), child=int(b), anchor=p_world[j]))
+    return specs
+
+
 def build_character(
     skeleton: Skeleton,
     rotations: Float[Array, "joints 4"] | None = None,
@@ -182,67 +270,9 @@ def build_character(
     fk = _forward_kinematics(skeleton, q_build, offsets if t_build is None else t_build)
     p_world = np.asarray(fk.positions) * unit
     R_world = np.asarray(fk.rotations)
-    up = np.array([0.0, 1.0, 0.0])
-    # Bodies: shapes in the joint frames (meters).
-    body_joint, shapes, centers, body_rots = [], [], [], []
-    soles = []  # (body, bottom height in the build pose)
-    for j in range(J):
-        seg = _segments(skeleton, j) * unit
-        lengths = np.linalg.norm(seg, axis=1)
-        seg = seg[lengths > min_length * H]
-        if seg.shape[0] == 0:
-            continue
-        mean = seg.mean(axis=0)
-        if np.linalg.norm(mean) > 0.5 * np.linalg.norm(seg, axis=1).mean():
-            d, L = mean / np.linalg.norm(mean), float(np.linalg.norm(mean))
-        else:  # children spread symmetrically: along the longest
-            k = int(np.argmax(np.linalg.norm(seg, axis=1)))
-            L = float(np.linalg.norm(seg[k]))
-            d = seg[k] / L
-        r = _radius(skeleton.names[j], L, H, radius_ratio)
-        body_joint.append(j)
-        is_foot = any(s in skeleton.names[j] for s in foot_names)
-        s_w = R_world[j] @ (L * d)  # the segment in the build pose
-        s_h = s_w - (s_w @ up) * up
-        if is_foot and np.linalg.norm(s_h) > 0.5 * L:
-            # A sole: a box lying flat in the build pose along the segment's heading, its bottom
-            # 0.6 r below the segment's lower end; a foot (not a toe) reaches `heel` of its length
-            # behind the joint.
-            Lh = float(np.linalg.norm(s_h))
-            parent = skeleton.parents[j]
-            back = heel * Lh if parent < 0 or not any(s in skeleton.names[parent] for s in foot_names) else 0.0
-            z = s_h / Lh
-            shapes.append(["box", [2 * r, 1.2 * r, Lh + back]])
-            centers.append(0.5 * (Lh - back) * z + min(0.0, float(s_w @ up)) * up)  # world, fixed below
-            body_rots.append(np.stack([np.cross(up, z), up, z], axis=1))  # world; local below
-            soles.append((len(body_joint) - 1, float(p_world[j] @ up + centers[-1] @ up) - 0.6 * r))
-            continue
-        if is_foot:
-            shapes.append(("box", (2 * r, 1.2 * r, L)))
-        else:
-            shapes.append(("capsule", (r, max(L - 2 * r, 0.2 * L))))
-        centers.append(0.5 * L * d)
-        body_rots.append(d)  # the capsule's axis; a rotation below
-    # Soles within `sole_fit` above the lowest one reach down to it (mocap feet are rarely level).
-    level = min((h for _, h in soles), default=0.0)
-    for b, h in soles:
-        gap = h - level if h - level <= sole_fit else 0.0
-        shapes[b][1][1] += gap
-        j = body_joint[b]
-        centers[b] = R_world[j].T @ (centers[b] - 0.5 * gap * up)
-        body_rots[b] = R_world[j].T @ body_rots[b]
-        shapes[b] = (shapes[b][0], tuple(shapes[b][1]))
-    if not body_joint:
-        raise JaxanimError("skeleton: no segment longer than min_length; nothing to simulate")
-    # Body orientations in their joints' frames, each kind in one call.
-    quats = np.zeros((len(body_joint), 4))
-    sole = np.array([np.ndim(R) == 2 for R in body_rots])
-    if sole.any():
-        quats[sole] = np.asarray(_matrix_to_quat(jnp.asarray(np.stack([R for R in body_rots if np.ndim(R) == 2]))))
-    if (~sole).any():
-        axes = jnp.asarray(np.stack([d for d in body_rots if np.ndim(d) == 1]))
-        quats[~sole] = np.asarray(_rotation_between(jnp.array([0.0, 0.0, 1.0]), axes))
-    body_rots = list(quats)
+    body_joint, shapes, centers, body_rots = _body_shapes(skeleton, p_world, R_world, unit, H, radius_ratio=radius_ratio,
+                                                          min_length=min_length, foot_names=foot_names, heel=heel,
+                                                          sole_fit=sole_fit)
     vols = np.array([float(shape_mass_properties(k, s, density=1.0)[0]) for k, s in shapes])
     masses = total_mass * vols / vols.sum()
     names = tuple(skeleton.names[j] for j in body_joint)
@@ -260,15 +290,7 @@ def build_character(
         body_rotation=jnp.asarray(np.stack(body_rots)), body_center=jnp.asarray(np.stack(centers)),
     )
     state = character_state(char, rotations, translations, bodies=bodies)
-    # Joints: to the nearest bodied ancestor; top-level bodies hang off the heaviest one.
-    top = [b for b, j in enumerate(body_joint) if skeleton.parents[j] < 0 or joint_body[skeleton.parents[j]] < 0]
-    root = max(top, key=lambda b: masses[b])
-    specs = []
-    for b, j in enumerate(body_joint):
-        if b == root:
-            continue
-        parent = root if b in top else joint_body[skeleton.parents[j]]
-        specs.append(dict(name=skeleton.names[j], type="ball", parent=int(parent), child=int(b), anchor=p_world[j]))
+    specs = _joint_specs(skeleton, body_joint, joint_body, masses, p_world)
     joints: Joints = make_joints(bodies, state, specs)
     model = make_model(bodies, joints, ground=ground, erp=erp, cfm=cfm, scan_levels=scan_levels)
     return eqx.tree_at(lambda c: c.model, char, model, is_leaf=lambda x: x is None), state

@@ -22,6 +22,34 @@ def _quat_between(q_parent: np.ndarray, q_child: np.ndarray) -> np.ndarray:
     return np.asarray(rot.quat_multiply(rot.quat_conjugate(jnp.asarray(q_parent)), jnp.asarray(q_child)))
 
 
+def _springs(num_joints: int, **values) -> dict[str, np.ndarray]:
+    """Each given per-joint spring parameter (``[joints]`` or a scalar) as a ``[joints]`` array."""
+    springs = {}
+    for key, value in values.items():
+        if value is not None:
+            arr = np.broadcast_to(np.asarray(value, float), (num_joints,)) if np.ndim(value) == 0 else np.asarray(
+                value, float)
+            if arr.shape != (num_joints,):
+                raise JaxanimError(f"{key}: expected a scalar or shape ({num_joints},) (one per joint), got {arr.shape}")
+            springs[key] = arr
+    return springs
+
+
+def _geom(model: PhysicsModel, b: int, size: np.ndarray, collide: bool) -> str:
+    """Body ``b``'s shape as a MuJoCo geom (capsules along body ``z``), colliding with the ground only."""
+    bodies = model.bodies
+    kind = bodies.shapes[b]
+    if kind == "box":
+        shape = f'type="box" size="{_fmt(size / 2)}"'
+    elif kind == "sphere":
+        shape = f'type="sphere" size="{_fmt(size[:1])}"'
+    else:
+        shape = f'type="capsule" size="{_fmt([size[0], size[1] / 2])}"'
+    flags = (f'contype="1" conaffinity="0" condim="3" friction="{float(model.ground.friction):.17g} 0 0"'
+             if collide else 'contype="0" conaffinity="0"')
+    return f'<geom name="{bodies.names[b]}_geom" {shape} {flags}/>'
+
+
 def to_mjcf(
     model: PhysicsModel, state: BodyState, *, dt: float = 1 / 600, name: str = "jaxanim",
     stiffness: ArrayLike | None = None, damping: ArrayLike | None = None,
@@ -55,14 +83,7 @@ def to_mjcf(
             ``stiffness`` / ``damping`` of the wrong shape.
     """
     bodies, joints = model.bodies, model.joints
-    Jn = joints.num_joints
-    springs = {}
-    for key, value in (("stiffness", stiffness), ("damping", damping)):
-        if value is not None:
-            arr = np.broadcast_to(np.asarray(value, float), (Jn,)) if np.ndim(value) == 0 else np.asarray(value, float)
-            if arr.shape != (Jn,):
-                raise JaxanimError(f"{key}: expected a scalar or shape ({Jn},) (one per joint), got {arr.shape}")
-            springs[key] = arr
+    springs = _springs(joints.num_joints, stiffness=stiffness, damping=damping)
     collide = model.ground.model != "none"
     x = np.asarray(state.position, float)
     q = np.asarray(state.orientation, float)
@@ -81,18 +102,6 @@ def to_mjcf(
     ac = np.asarray(joints.anchor_child, float)
     ep = np.asarray(joints.axis_parent, float)
     ec = np.asarray(joints.axis_child, float)
-
-    def geom(b):
-        kind = bodies.shapes[b]
-        if kind == "box":
-            s = f'type="box" size="{_fmt(size[b] / 2)}"'
-        elif kind == "sphere":
-            s = f'type="sphere" size="{_fmt(size[b][:1])}"'
-        else:
-            s = f'type="capsule" size="{_fmt([size[b][0], size[b][1] / 2])}"'
-        flags = (f'contype="1" conaffinity="0" condim="3" friction="{float(model.ground.friction):.17g} 0 0"'
-                 if collide else 'contype="0" conaffinity="0"')
-        return f'<geom name="{bodies.names[b]}_geom" {s} {flags}/>'
 
     def body_xml(b, parent, indent):
         pad = "  " * indent
@@ -127,7 +136,7 @@ def to_mjcf(
                 first = Rm[b].T @ (Rp @ ep[j])  # the parent-side axis in the child frame at assembly
                 lines.append(f'{pad}  <joint name="{jname}_1" type="hinge" pos="{anchor}" axis="{_fmt(first)}"{extra}/>')
                 lines.append(f'{pad}  <joint name="{jname}_2" type="hinge" pos="{anchor}" axis="{_fmt(ec[j])}"{extra}/>')
-        lines.append(f"{pad}  {geom(b)}")
+        lines.append(f"{pad}  {_geom(model, b, size[b], collide)}")
         for c in children.get(b, []):
             lines.extend(body_xml(c, b, indent + 1))
         lines.append(f"{pad}</body>")
