@@ -3,7 +3,7 @@
 The character is built in a BVH clip's first frame (its soles fitted to that frame, see
 :func:`jaxanim.character.build_character`) and holds it by stable PD plus the Jacobian-transpose balance law
 of :func:`jaxanim.balance.balance_controller` (no root force). Every grid point gets a horizontal
-push on the torso; a point "falls" when the centre of mass drops below 95 % of its start height
+push on the torso; a point "falls" when the center of mass drops below 95 % of its start height
 (:func:`jaxanim.balance.stood`) or the rollout is stopped. All gains and the push are arrays in
 the controller's ``args``, so the whole grid is one ``jax.vmap`` of one compiled rollout.
 
@@ -95,7 +95,7 @@ def main(argv=None) -> np.ndarray:
     p.add_argument("--push-max", type=float, default=250.0, help="largest push, N")
     p.add_argument("--push-direction", type=float, nargs=3, default=(0.0, 0.0, 1.0),
                    help="horizontal push direction, world frame (default +Z: forwards, heels to toes, for the CMU clip)")
-    p.add_argument("--push-body", default="Spine", help="body pushed (its centre of mass)")
+    p.add_argument("--push-body", default="Spine", help="body pushed (its center of mass)")
     p.add_argument("--push-start", type=float, default=0.5, help="push start, s")
     p.add_argument("--push-duration", type=float, default=0.2, help="push duration, s")
     a = p.parse_args(argv)

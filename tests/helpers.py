@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import logging
 
 import jax
 import jax.numpy as jnp
@@ -100,3 +101,25 @@ def count_traces():
         yield traces
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
+
+
+@contextlib.contextmanager
+def xla_compiles():
+    """The names of the functions XLA compiles inside the ``with`` block (from ``jax.log_compiles``),
+    e.g. ``["jit(_rollout)"]``: a call that does not retrace compiles nothing."""
+    names: list[str] = []
+
+    class _Handler(logging.Handler):
+        def emit(self, record):
+            msg = record.getMessage()
+            if msg.startswith("Compiling "):
+                names.append(msg.split()[1])
+
+    handler = _Handler()
+    logger = logging.getLogger("jax")
+    logger.addHandler(handler)
+    try:
+        with jax.log_compiles():
+            yield names
+    finally:
+        logger.removeHandler(handler)

@@ -1,7 +1,7 @@
 """Tests of jaxanim.balance on the CMU clip 01_01, its first frame as the target: the character
 stands 10 s on complementarity ground with stable PD and the Jacobian-transpose balance law and no
 root force, recovers from a documented push (and falls without the balance torques), the balance torques have the sign that
-moves the centre of mass towards the support centre, a vmap over gain / push settings equals a
+moves the center of mass towards the support center, a vmap over gain / push settings equals a
 Python loop of the same compiled rollout, the sweep example runs, and bad input.
 
 Cost: two compilations of the 10 s rollout (unbatched and vmapped, ~30 s each on 2 cores) shared by
@@ -22,6 +22,7 @@ from jaxanim import JaxanimError, balance, character, contact, physics
 from jaxanim import rotations as rot
 
 from .conftest import REPO, shared_data_dir
+from .helpers import xla_compiles
 
 DT = 1 / 120  # the notes' control rate
 SECONDS = 10.0
@@ -103,7 +104,7 @@ def test_first_frame_stands_on_both_soles(cmu):
         np.testing.assert_allclose(heights[:4], heights[0], atol=1e-9, err_msg=f"{foot}: sole not flat")
         soles[foot] = heights[0]
     np.testing.assert_allclose(list(soles.values()), min(soles.values()), atol=1e-9, err_msg="soles not level")
-    c = np.asarray(balance.center_of_mass(char.model.bodies, state)[0])
+    c = np.asarray(physics.bodies_center_of_mass(char.model.bodies, state)[0])
     lo, hi = _feet_region(char, state)
     assert np.all(c[[0, 2]] > lo) and np.all(c[[0, 2]] < hi), "CoM not over the feet"
 
@@ -118,7 +119,7 @@ def test_standing_pose_is_flat_footed_and_balanced(cmu):
     for foot in ("LeftFoot", "RightFoot"):
         heights = p[np.asarray(body) == char.model.bodies.names.index(foot), 1]
         np.testing.assert_allclose(np.sort(heights)[:4], np.sort(heights)[0], atol=1e-9, err_msg=f"{foot} not flat")
-    c = np.asarray(balance.center_of_mass(char.model.bodies, state)[0])
+    c = np.asarray(physics.bodies_center_of_mass(char.model.bodies, state)[0])
     lo, hi = _feet_region(char, state)
     assert np.all(c[[0, 2]] > lo) and np.all(c[[0, 2]] < hi)
     # Only the ankles (and the toes below them) changed.
@@ -140,17 +141,18 @@ def test_stance_legs_by_name(cmu):
     assert explicit == (legs, signs)
 
 
-def test_balance_torques_move_the_com_towards_the_support_centre(cmu):
+def test_balance_torques_move_the_com_towards_the_support_center(cmu):
     """Power check of the sign convention: the torque each leg joint applies to the body on the
-    centre-of-mass side (``-joint_torque``, as the parent, by physics.step's +child / -parent) turns
+    center-of-mass side (``-joint_torque``, as the parent, by physics.step's +child / -parent) turns
     that side so that ``c`` moves along ``f``: ``f . ((-tau_j) x (c - p_j)) > 0``."""
     char, *_, state, ctrl, args = cmu
-    c, _ = balance.center_of_mass(char.model.bodies, state)
+    c, _ = physics.bodies_center_of_mass(char.model.bodies, state)
     for offset in (np.array([0.0, 0.0, 0.05]), np.array([-0.04, 0.0, 0.0])):
         a = _with(args, support_weight=0.0, target=np.asarray(c) + offset)
         u = ctrl(state, jnp.asarray(0), a)
         f = float(args["balance_kp"]) * offset  # at rest: no damping term
-        tau = np.asarray(u["joint_torque"])
+        assert isinstance(u, physics.Control) and u["joint_torque"] is u.joint_torque  # 0.1 dict-style reads
+        tau = np.asarray(u.joint_torque)
         p = np.asarray(balance.joint_anchors(char.model.joints, state))
         legs, _ = balance.stance_leg_joints(char)
         for leg in legs:
@@ -159,7 +161,7 @@ def test_balance_torques_move_the_com_towards_the_support_centre(cmu):
                 assert f @ np.cross(-tau[j], np.asarray(c) - p[j]) > 0
         others = [j for j in range(len(tau)) if all(j not in leg for leg in legs)]
         assert np.all(tau[others] == 0)
-        assert np.all(np.asarray(u["force"]) == 0)  # no push at t = 0
+        assert np.all(np.asarray(u.force) == 0)  # no push at t = 0
 
 
 def test_stands_10_s_without_root_force(cmu, loop_runs):
@@ -167,11 +169,11 @@ def test_stands_10_s_without_root_force(cmu, loop_runs):
     run = loop_runs["stand"]
     assert run.result == physics.SimResult.successful and int(run.num_steps) == NUM_STEPS
     com = _com(char, run.trajectory)
-    c0 = np.asarray(balance.center_of_mass(char.model.bodies, state)[0])
+    c0 = np.asarray(physics.bodies_center_of_mass(char.model.bodies, state)[0])
     heights = com[:, 1] / c0[1]
     assert heights.min() > 0.95 and heights.max() < 1.05, f"CoM height / start in [{heights.min()}, {heights.max()}]"
     drift = np.linalg.norm((com - c0)[:, [0, 2]], axis=-1)
-    # The law moves the CoM towards the feet centre (16 cm ahead of it in this frame) until the
+    # The law moves the CoM towards the feet center (16 cm ahead of it in this frame) until the
     # stable PD holding the pose balances it.
     assert drift.max() < 0.06, f"CoM moved {drift.max():.4f} m horizontally"
     lo, hi = _feet_region(char, run.final)
@@ -217,6 +219,21 @@ def test_vmap_equals_python_loop(cmu, loop_runs, vmap_runs):
             np.testing.assert_allclose(getattr(vrun.trajectory, field)[:upto], getattr(run.trajectory, field)[:upto],
                                        rtol=0, atol=atol, err_msg=f"{name}: trajectory.{field}")
         np.testing.assert_allclose(vrun.final.position, run.final.position, rtol=0, atol=1e-6, err_msg=f"{name}: final")
+
+
+def test_a_second_balance_controller_does_not_recompile(cmu, loop_runs):
+    """A balance controller for another pose of the same character (the same structure, new
+    values) reuses the compiled rollout; the same pose gives the same states to the bit."""
+    char, q0, t0, state, _, args = cmu
+    motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")[1]
+    with xla_compiles() as compiled:
+        other, _ = balance.balance_controller(char, motion.rotations[20], motion.translations[20], DT, push=PUSH)
+        same, _ = balance.balance_controller(char, q0, t0, DT, push=PUSH)
+        runs = {ctrl: physics.rollout(char.model, state, DT, NUM_STEPS, record_every=RECORD_EVERY, controller=c,
+                                      controller_args=_with(args)) for ctrl, c in (("other", other), ("same", same))}
+    assert compiled == [], compiled
+    np.testing.assert_array_equal(runs["same"].trajectory.position, loop_runs["stand"].trajectory.position)
+    assert float(jnp.max(jnp.abs(runs["other"].final.position - runs["same"].final.position))) > 1e-3
 
 
 def test_bad_input(cmu):

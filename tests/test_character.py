@@ -5,6 +5,7 @@ stable PD and the root force on the ground, and bad input."""
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,6 +15,7 @@ import jaxanim
 from jaxanim import JaxanimError, character, contact, control, physics
 
 from .conftest import shared_data_dir
+from .helpers import xla_compiles
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +55,7 @@ def test_pose_state_round_trip(cmu):
     b = jaxanim.forward_kinematics(skel, q, t)
     np.testing.assert_allclose(b.positions, a.positions, atol=1e-9)
     np.testing.assert_allclose(b.end_site_positions, a.end_site_positions, atol=1e-9)
-    # Metres: a body's centre lies on its bone, in the file's frame scaled by the unit.
+    # Meters: a body's center lies on its bone, in the file's frame scaled by the unit.
     i = char.model.bodies.names.index("LeftLeg")
     j, k = skel.index("LeftLeg"), skel.index("LeftFoot")
     mid = 0.5 * (a.positions[j] + a.positions[k]) * char.unit
@@ -86,12 +88,22 @@ def test_bad_input(cmu):
         character.build_character(skel, jnp.zeros((30, 4)))
 
 
-def test_tracks_the_clip_with_stable_pd_and_the_root_force(cmu):
-    skel, q0, t0, char, state = cmu
+_DT_TRACK = 1 / 120
+
+
+@pytest.fixture(scope="module")
+def tracked(cmu):
+    """The clip tracked 300 steps at 120 Hz (one compiled rollout, shared)."""
+    _, _, _, char, state = cmu
     motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")[1]
-    dt = 1 / 120
-    ctrl, args = character.tracking_controller(char, motion, dt)
-    run = physics.rollout(char.model, state, dt, 300, controller=ctrl, controller_args=args)
+    ctrl, args = character.tracking_controller(char, motion, _DT_TRACK)
+    return motion, physics.rollout(char.model, state, _DT_TRACK, 300, controller=ctrl, controller_args=args)
+
+
+def test_tracks_the_clip_with_stable_pd_and_the_root_force(cmu, tracked):
+    skel, q0, t0, char, state = cmu
+    motion, run = tracked
+    dt = _DT_TRACK
     assert run.result == physics.SimResult.successful and int(run.num_steps) == 300
     # Joint error: the angle between each simulated joint's relative rotation and the clip's, at the
     # frame the controller tracked at that step.
@@ -104,3 +116,20 @@ def test_tracks_the_clip_with_stable_pd_and_the_root_force(cmu):
     lowest = jax.vmap(lambda s: jnp.min(contact._geometry(char.model.ground, char.model.bodies, s)[2]))(run.trajectory)
     assert float(jnp.min(lowest)) > -1e-3, f"sank {float(jnp.min(lowest))} m"
     assert float(jnp.max(physics.joint_error(char.model, run.final))) < 5e-3
+
+
+def test_build_tracking_and_rollout_compile_once(cmu, tracked):
+    """A second character built in another frame, tracking the clip played backwards with other
+    gains (the same structure, new values): nothing is compiled again."""
+    skel, *_ = cmu
+    motion, first = tracked
+    backwards = eqx.tree_at(lambda m: (m.rotations, m.translations), motion,
+                            (motion.rotations[::-1], motion.translations[::-1]))
+    with xla_compiles() as compiled:
+        char, state = character.build_character(skel, motion.rotations[10], motion.translations[10],
+                                                ground=contact.make_ground())
+        ctrl, args = character.tracking_controller(char, backwards, _DT_TRACK, kp=400.0, kd=40.0)
+        run = physics.rollout(char.model, state, _DT_TRACK, 300, controller=ctrl, controller_args=args)
+    assert compiled == [], compiled
+    assert run.result == physics.SimResult.successful
+    assert float(jnp.max(jnp.abs(run.final.position - first.final.position))) > 0.1  # new values used

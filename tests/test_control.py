@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxanim import JaxanimError, control, joints, physics, rigid
-from jaxanim.physics import _model as physics_impl
 from jaxanim import rotations as rot
+
+from .helpers import xla_compiles
 
 _KP, _KD = 200.0, 20.0
 
@@ -80,13 +82,12 @@ def _chain():
 def _run_chain(dt, seconds, law, kp=300.0, kd=10.0):
     model, state, targets = _chain()
     kp, kd = jnp.full(3, kp), jnp.full(3, kd)
-    zeros = jnp.zeros((3, 3))
 
     def body(s, _):
         if law == "pd":
             tau = control.pd_joint_torques(model.joints, s, targets, kp, kd)
-            return physics_impl._step(model, s, zeros, zeros, tau, dt), None
-        return physics_impl._step(model, s, zeros, zeros, zeros, dt, (targets, kp, kd)), None
+            return physics.step(model, s, dt, physics.Control(joint_torque=tau)), None
+        return physics.step(model, s, dt, physics.Control(spd=physics.StablePD(targets, kp, kd))), None
 
     final = jax.jit(lambda s: jax.lax.scan(body, s, None, length=int(round(seconds / dt)))[0])(state)
     return model, final, targets
@@ -166,3 +167,77 @@ def test_servo_and_spd_with_zero_gains_do_nothing():
                          servo=(0, jnp.ones(3), jnp.asarray([1.0, 0, 0, 0]), 0.0, 0.0, 0.0, 0.0))
     for name in ("position", "orientation", "linear_velocity", "angular_velocity"):
         np.testing.assert_allclose(getattr(servo, name), getattr(plain, name), atol=1e-12, err_msg=name)
+
+
+def test_control_module_dict_and_0_1_keywords_give_the_same_step():
+    """A ``Control`` (with ``StablePD`` and ``Servo``), the 0.1 ``dict`` and the 0.1 keywords with
+    tuples are one input: the same state to the bit."""
+    model, state, targets = _chain()
+    state = physics.step(model, state, 1 / 120)  # moving a little
+    force = jnp.asarray([[0.0, 1.0, 0.0], [2.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    tau = jnp.asarray([[0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.3]])
+    spd = (targets, jnp.full(3, 50.0), 5.0)  # kd a scalar: broadcast to every joint
+    servo = (0, jnp.asarray([0.0, -0.1, 0.05]), jnp.asarray([1.0, 0.1, 0, 0]), 100.0, 20.0, 30.0, 3.0)  # unnormalized q
+    typed = physics.Control(force=force, joint_torque=tau, spd=physics.StablePD(*spd), servo=physics.Servo(*servo))
+    runs = {
+        "Control": physics.step(model, state, 1 / 120, typed),
+        "dict": physics.step(model, state, 1 / 120, dict(force=force, joint_torque=tau, spd=spd, servo=servo)),
+        "keywords": physics.step(model, state, 1 / 120, force=force, joint_torque=tau, spd=spd, servo=servo),
+    }
+    plain = physics.step(model, state, 1 / 120)
+    for form, s in runs.items():
+        for name in ("position", "orientation", "linear_velocity", "angular_velocity"):
+            np.testing.assert_array_equal(getattr(s, name), getattr(runs["Control"], name), err_msg=f"{form}: {name}")
+    assert float(jnp.max(jnp.abs(runs["Control"].linear_velocity - plain.linear_velocity))) > 1e-3  # it acted
+
+
+def test_control_bad_input():
+    model, state, targets = _chain()
+    with pytest.raises(JaxanimError, match="control: give a Control or the keywords"):
+        physics.step(model, state, 0.01, physics.Control(), force=jnp.zeros((3, 3)))
+    with pytest.raises(JaxanimError, match=r"control: unknown key\(s\) \['forces'\]"):
+        physics.step(model, state, 0.01, dict(forces=jnp.zeros((3, 3))))
+    with pytest.raises(JaxanimError, match=r"joint_torque: expected shape \(J, 3\) = \(3, 3\)"):
+        physics.step(model, state, 0.01, physics.Control(joint_torque=jnp.zeros((2, 3))))
+    with pytest.raises(JaxanimError, match=r"spd targets: expected shape \(J, 4\) = \(3, 4\)"):
+        physics.step(model, state, 0.01, physics.Control(spd=physics.StablePD(jnp.zeros((2, 4)), 1.0, 1.0)))
+    with pytest.raises(JaxanimError, match=r"servo: body must be an int in \[0, 3\)"):
+        physics.step(model, state, 0.01, physics.Control(servo=physics.Servo(3, jnp.zeros(3), targets[0], 1, 1, 1, 1)))
+    with pytest.raises(JaxanimError, match=r"servo position: expected shape \(3,\)"):
+        physics.step(model, state, 0.01, servo=(0, jnp.zeros(2), targets[0], 1.0, 1.0, 1.0, 1.0))
+    with pytest.raises(JaxanimError, match="servo: expected Servo"):
+        physics.step(model, state, 0.01, servo=(0, jnp.zeros(3)))
+
+
+class _TypedPD(eqx.Module):
+    """Explicit PD towards ``targets`` as a Module controller returning a ``Control`` (or, with
+    ``as_dict``, the 0.1 ``dict``)."""
+
+    targets: jax.Array
+    as_dict: bool = eqx.field(static=True, default=False)
+
+    def __call__(self, state, step, args):
+        model = _chain()[0]
+        kp, kd = args
+        tau = control.pd_joint_torques(model.joints, state, self.targets, jnp.full(3, kp), jnp.full(3, kd))
+        return dict(joint_torque=tau) if self.as_dict else physics.Control(joint_torque=tau)
+
+
+def _gains(kp, kd):
+    return jnp.asarray(kp), jnp.asarray(kd)  # arrays: a Python float would be static (a retrace per value)
+
+
+def test_rollout_compiles_once_for_new_values_of_the_same_structure():
+    """A second eager rollout with a new state, new controller arrays and new gains does not
+    retrace; the 0.1 dict controller and the typed one give the same states."""
+    model, state, targets = _chain()
+    first = physics.rollout(model, state, 1 / 120, 24, controller=_TypedPD(targets),
+                            controller_args=_gains(2.0, 0.5))
+    with xla_compiles() as compiled:
+        second = physics.rollout(model, first.final, 1 / 120, 24, controller=_TypedPD(targets[::-1]),
+                                 controller_args=_gains(3.0, 0.6))
+    assert not [c for c in compiled if "_rollout" in c], compiled
+    assert float(jnp.max(jnp.abs(second.final.position - first.final.position))) > 1e-3  # new values used
+    as_dict = physics.rollout(model, state, 1 / 120, 24, controller=_TypedPD(targets, as_dict=True),
+                              controller_args=_gains(2.0, 0.5))
+    np.testing.assert_array_equal(as_dict.trajectory.position, first.trajectory.position)

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from jaxanim import JaxanimError, joints, physics, rigid
-from jaxanim.physics import _model as physics_impl
 from jaxanim import rotations as rot
 
 _R, _L = 0.05, 0.4
@@ -111,7 +110,7 @@ def test_ball_twist_stops_at_its_bound():
     model = physics.make_model(bodies, J)
     torque = jnp.array([[0.05, 0.0, 0.0]])  # about the bone axis
     s = state
-    step = jax.jit(lambda s: physics_impl._step(model, s, jnp.zeros((1, 3)), torque, jnp.zeros((1, 3)), jnp.asarray(_DT)))
+    step = jax.jit(lambda s: physics.step(model, s, _DT, physics.Control(torque=torque)))
     twists = []
     for _ in range(int(1.5 / _DT)):
         s = step(s)

@@ -14,9 +14,9 @@ import pytest
 from jaxanim import JaxanimError, joints, physics, rigid
 from jaxanim import rotations as rot
 
-_DRIFT_TOL = 1e-4  # acceptance: joint separation over 10 s at dt = 1/600, metres
-_R, _L = 0.05, 0.4  # capsule radius and cap-centre distance
-_HALF = _L / 2 + _R  # centre to tip
+_DRIFT_TOL = 1e-4  # acceptance: joint separation over 10 s at dt = 1/600, meters
+_R, _L = 0.05, 0.4  # capsule radius and cap-center distance
+_HALF = _L / 2 + _R  # center to tip
 
 
 def _capsule_toward(direction):

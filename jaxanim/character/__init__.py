@@ -3,6 +3,7 @@
 
 from ._build import (
     Character as Character,
+    TrackingController as TrackingController,
     build_character as build_character,
     character_pose as character_pose,
     character_state as character_state,
@@ -17,10 +18,11 @@ from ._pd import (
     stable_pd_force as stable_pd_force,
 )
 from ._balance import (
+    BalanceController as BalanceController,
     balance_controller as balance_controller,
     joint_anchors as joint_anchors,
     stance_leg_joints as stance_leg_joints,
     standing_pose as standing_pose,
     stood as stood,
-    support_centre as support_centre,
+    support_center as support_center,
 )

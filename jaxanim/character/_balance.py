@@ -1,7 +1,7 @@
 r"""Static balance by Jacobian-transpose control (course notes §1.O, eqs. 7.10-7.12).
 
 A character standing on both feet holds its pose by stable PD (``spd`` of
-:func:`jaxanim.physics.step`) and keeps its whole-body centre of mass ``c`` over its feet with a
+:func:`jaxanim.physics.step`) and keeps its whole-body center of mass ``c`` over its feet with a
 **virtual force** at ``c``, turned into joint torques of the stance legs by the Jacobian transpose:
 
 .. math::
@@ -12,35 +12,35 @@ A character standing on both feet holds its pose by stable PD (``spd`` of
 
 (eq. 7.10 and 7.12). ``P = I - u u^T`` keeps the horizontal components (``u`` = world up, minus
 gravity's direction: ``+Y``), ``c = \sum_b m_b x_b / M`` and ``\dot c = \sum_b m_b v_b / M`` are the
-whole-body centre of mass and its velocity, ``p_i`` is joint ``i``'s world anchor, and the force is
-shared equally by the ``n_\text{legs}`` (two) stance legs. ``\bar c``, the **support centre**, is by
-default (``support="feet"``) the mean of the feet bodies' centres of mass (bodies named with
+whole-body center of mass and its velocity, ``p_i`` is joint ``i``'s world anchor, and the force is
+shared equally by the ``n_\text{legs}`` (two) stance legs. ``\bar c``, the **support center**, is by
+default (``support="feet"``) the mean of the feet bodies' centers of mass (bodies named with
 ``foot_names``: the foot and toe boxes, i.e. the mean of their contact corners) projected on the
-ground, recomputed every step; ``support="initial"`` uses instead the centre of mass of the given
-pose, fixed (a float ``support`` in ``[0, 1]`` blends the two: the weight of the feet centre;
+ground, recomputed every step; ``support="initial"`` uses instead the center of mass of the given
+pose, fixed (a float ``support`` in ``[0, 1]`` blends the two: the weight of the feet center;
 it is ``args["support_weight"]``, so it can be swept too).
 
 **A pose that can stand.** A character built in a mocap frame by
 :func:`~jaxanim.character.build_character` stands on soles laid flat in that frame, with heels, and
-levelled (CMU ``01_01``'s first frame stands as it is: its centre of mass is over the heels, and
+levelled (CMU ``01_01``'s first frame stands as it is: its center of mass is over the heels, and
 the left foot, 2 cm higher than the right in the clip, gets a deeper sole). For another pose than
 the build pose the soles are usually tilted; :func:`standing_pose` makes the nearest pose that can
-stand: feet flat, the body turned about the ankles so that ``c`` is over the feet centre, the
+stand: feet flat, the body turned about the ankles so that ``c`` is over the feet center, the
 lowest point on the ground; the other joint angles are the frame's. Hold a pose with ``kp`` of
 several thousand N m / rad: at 1000 the ankles (two in parallel against the gravitational
 stiffness ``m g h`` of about 700 N m / rad and the knees in series) give way and the character
 topples slowly even with the balance law.
 
 **Signs.** ``tau_i`` is the torque that the leg below joint ``i`` (the foot side, which pushes on
-the ground) exerts on the part above it (the centre-of-mass side): the torque of ``f`` at ``c``
+the ground) exerts on the part above it (the center-of-mass side): the torque of ``f`` at ``c``
 about ``p_i``. :func:`jaxanim.physics.step` applies ``joint_torque[j]`` as ``+tau`` on
 ``joints.child[j]`` and ``-tau`` on ``joints.parent[j]``; in a character built by
 :func:`jaxanim.character.build_character` the parent is the body nearer the pelvis (root), i.e. the
-centre-of-mass side, so ``joint_torque[i] = -tau_i``. (:func:`stance_leg_joints` accepts only
+center-of-mass side, so ``joint_torque[i] = -tau_i``. (:func:`stance_leg_joints` accepts only
 joints on the path from a foot to the root, whose child is on the foot side, and returns that
 sign, ``-1``, with each joint.)
 
-**Push.** A horizontal push is an external force ``push_force`` (N, world frame) on the centre of
+**Push.** A horizontal push is an external force ``push_force`` (N, world frame) on the center of
 mass of body ``push_body`` during ``push_start <= t < push_start + push_duration`` (``t = k dt``
 at step ``k``).
 
@@ -52,6 +52,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -63,24 +64,22 @@ from ._build import Character, character_state, spd_targets
 from ..physics._contact import _geometry
 from ..kinematics._fk import forward_kinematics, global_to_local
 from ..physics._joints import Joints
-from ..physics._bodies import BodyState, RigidBodies
+from ..physics._bodies import BodyState, RigidBodies, bodies_center_of_mass
+from ..physics._control import Control, StablePD
 
 __all__ = [
-    "balance_controller", "center_of_mass", "joint_anchors", "stance_leg_joints", "standing_pose", "stood",
-    "support_centre",
+    "BalanceController", "balance_controller", "bodies_center_of_mass", "joint_anchors", "stance_leg_joints",
+    "standing_pose", "stood", "support_center",
 ]
 
-_SUPPORTS = {"feet": 1.0, "initial": 0.0}  # the weight of the feet centre in c_bar
+_SUPPORTS = {"feet": 1.0, "initial": 0.0}  # the weight of the feet center in c_bar
 
 
-def center_of_mass(bodies: RigidBodies, state: BodyState) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
-    """The whole-body centre of mass and its velocity ``(c [3], c_dot [3])`` (world frame, m, m/s)."""
-    m = bodies.mass / jnp.sum(bodies.mass)
-    return m @ state.position, m @ state.linear_velocity
+center_of_mass = bodies_center_of_mass  # the 0.1 name (jaxanim.balance.center_of_mass)
 
 
 def joint_anchors(joints: Joints, state: BodyState) -> Float[Array, "J 3"]:
-    """Every joint's anchor in the world frame (metres), seen from its child body."""
+    """Every joint's anchor in the world frame (meters), seen from its child body."""
     chi = np.asarray(joints.child, int)
     anchor = joints.anchor_child.astype(state.position.dtype)
     return state.position[chi] + rot.quat_apply(state.orientation[chi], anchor)
@@ -100,14 +99,21 @@ def _foot_bodies(character: Character, foot_names: Sequence[str]) -> list[int]:
     return feet
 
 
-def support_centre(
+def support_center(
     character: Character, state: BodyState, *, foot_names: Sequence[str] = ("Foot", "Toe")
 ) -> Float[Array, " 3"]:
-    """The support centre ``c_bar``: the mean of the feet bodies' centres (bodies whose names contain
+    """The support center ``c_bar``: the mean of the feet bodies' centers (bodies whose names contain
     one of ``foot_names``), projected on the horizontal plane through the origin (height 0 along
     up; only the horizontal components are used by the balance law)."""
     feet = _foot_bodies(character, foot_names)
     up = jnp.asarray(_up(character.model.bodies), state.position.dtype)
+    return _feet_center(state, tuple(feet), up)
+
+
+support_centre = support_center  # the 0.1 spelling (jaxanim.balance.support_centre)
+
+
+def _feet_center(state: BodyState, feet: tuple[int, ...], up: Array) -> Array:
     p = jnp.mean(state.position[np.asarray(feet)], axis=0)
     return p - (p @ up) * up
 
@@ -207,10 +213,10 @@ def balance_controller(
     ankle_names: Sequence[str] = ("Foot", "Ankle"),
     chain_length: int = 3,
     leg_joints: Sequence[Sequence[str]] | None = None,
-) -> tuple:
+) -> tuple[BalanceController, dict]:
     """A static-balance controller for :func:`jaxanim.physics.rollout` (see the module docstring).
 
-    Every step it returns ``spd = (targets, kp, kd)``: stable PD holding the pose
+    Every step it returns a :class:`~jaxanim.physics.Control` with ``spd = StablePD(targets, kp, kd)``: stable PD holding the pose
     ``(rotations, translations)`` (:func:`jaxanim.character.spd_targets`); ``joint_torque [J, 3]``:
     the Jacobian-transpose torques of the virtual force on the stance legs (zero elsewhere); and
     ``force [B, 3]``: the push (zero outside its time window). No root force ("servo") is used.
@@ -227,16 +233,18 @@ def balance_controller(
         push: ``None`` (no push) or ``(force [3] (N, world frame), body (name or index), start (s),
             duration (s))``. Without a push the ``args`` still carry a zero push, so pushed and
             unpushed runs share one compiled rollout.
-        support: ``"feet"`` (``c_bar`` = mean of the feet bodies' centres, every step),
-            ``"initial"`` (the pose's centre of mass) or a weight in ``[0, 1]`` of the feet centre
+        support: ``"feet"`` (``c_bar`` = mean of the feet bodies' centers, every step),
+            ``"initial"`` (the pose's center of mass) or a weight in ``[0, 1]`` of the feet center
             in a blend of the two (``args["support_weight"]``).
         foot_names: substrings of the feet bodies' names (for ``support="feet"``).
         ankle_names, chain_length, leg_joints: which joints carry the leg torques (see
             :func:`stance_leg_joints`).
 
     Returns:
-        ``(controller, args)`` for ``rollout(..., controller=controller, controller_args=args)``.
-        ``args`` is a dict of arrays: ``kp``, ``kd`` ``[J]``; ``balance_kp``, ``balance_kd``,
+        ``(controller, args)`` for ``rollout(..., controller=controller, controller_args=args)``:
+        the :class:`BalanceController` (it returns a :class:`~jaxanim.physics.Control`; two calls
+        on the same character give controllers of the same structure, so the rollout compiles
+        once) and ``args``, a dict of arrays: ``kp``, ``kd`` ``[J]``; ``balance_kp``, ``balance_kd``,
         ``max_force``; ``push_force [3]``, ``push_body`` (int), ``push_start``, ``push_duration``;
         ``target [3]`` (``c_bar`` for ``support="initial"``, unused for ``"feet"``). ``vmap`` over
         any of them sweeps it without recompiling.
@@ -251,7 +259,7 @@ def balance_controller(
     model = character.model
     bodies, joints = model.bodies, model.joints
     dtype = bodies.mass.dtype
-    B, Jn = bodies.num_bodies, joints.num_joints
+    Jn = joints.num_joints
     legs, signs = stance_leg_joints(character, ankle_names=ankle_names, chain_length=chain_length,
                                     leg_joints=leg_joints)
     _foot_bodies(character, foot_names)  # raises when no body is a foot
@@ -264,7 +272,7 @@ def balance_controller(
     up = jnp.asarray(_up(bodies), dtype)
     horizontal = jnp.eye(3, dtype=dtype) - jnp.outer(up, up)
     targets = spd_targets(character, rotations, translations)
-    c0, _ = center_of_mass(bodies, character_state(character, rotations, translations))
+    c0, _ = bodies_center_of_mass(bodies, character_state(character, rotations, translations))
     if push is None:
         push = (np.zeros(3), 0, 0.0, 0.0)
     if not (isinstance(push, (tuple, list)) and len(push) == 4):
@@ -281,24 +289,50 @@ def balance_controller(
         push_start=jnp.asarray(push[2], dtype), push_duration=jnp.asarray(push[3], dtype),
         target=c0, support_weight=jnp.asarray(_SUPPORTS[support] if isinstance(support, str) else support, dtype),
     )
-    h = float(dt)
-    body_ids = jnp.arange(B)
-
-    def controller(state, step, a):
-        c, c_dot = center_of_mass(bodies, state)
-        w = a["support_weight"]
-        c_bar = w * support_centre(character, state, foot_names=foot_names) + (1.0 - w) * a["target"]
-        f = horizontal @ (a["balance_kp"] * (c_bar - c) - a["balance_kd"] * c_dot)
-        norm = jnp.linalg.norm(f)
-        f = f * jnp.minimum(1.0, a["max_force"] / jnp.maximum(norm, jnp.finfo(dtype).tiny))
-        p = joint_anchors(joints, state)
-        tau = jnp.cross(c[None, :] - p, f[None, :]) * weight[:, None]  # sign_i tau_i / n_legs
-        t = step * h
-        on = (t >= a["push_start"]) & (t < a["push_start"] + a["push_duration"])
-        force = jnp.where((body_ids == a["push_body"])[:, None] & on, a["push_force"][None, :], 0.0)
-        return dict(spd=(targets, a["kp"], a["kd"]), joint_torque=tau, force=force)
-
+    feet = tuple(_foot_bodies(character, foot_names))
+    controller = BalanceController(bodies=bodies, joints=joints, feet=feet, targets=targets, weight=weight, up=up,
+                                   horizontal=horizontal, dt=jnp.asarray(float(dt)))
     return controller, args
+
+
+class BalanceController(eqx.Module):
+    """The controller of :func:`balance_controller` (a Module, so that two controllers of the same
+    character share one compiled rollout; the gains and the push are in its ``args``).
+
+    Attributes:
+        bodies, joints: the character's bodies and joints.
+        feet: the feet bodies (static), whose mean center is the support center.
+        targets: ``[joints, 4]`` the stable-PD targets of the pose held.
+        weight: ``[joints]`` the share of the virtual force's torque each joint carries (sign /
+            number of legs; zero off the stance legs).
+        up: ``[3]`` world up; horizontal: ``[3, 3]`` the projection ``I - u u'``.
+        dt: the control step, seconds (for the push timing).
+    """
+
+    bodies: RigidBodies
+    joints: Joints
+    feet: tuple[int, ...] = eqx.field(static=True)
+    targets: Float[Array, "joints 4"]
+    weight: Float[Array, " joints"]
+    up: Float[Array, " 3"]
+    horizontal: Float[Array, "3 3"]
+    dt: Float[Array, ""]
+
+    def __call__(self, state: BodyState, step, args) -> Control:
+        """The :class:`~jaxanim.physics.Control` of step ``step`` with the gains and push ``args``."""
+        c, c_dot = bodies_center_of_mass(self.bodies, state)
+        w = args["support_weight"]
+        c_bar = w * _feet_center(state, self.feet, self.up) + (1.0 - w) * args["target"]
+        f = self.horizontal @ (args["balance_kp"] * (c_bar - c) - args["balance_kd"] * c_dot)
+        norm = jnp.linalg.norm(f)
+        f = f * jnp.minimum(1.0, args["max_force"] / jnp.maximum(norm, jnp.finfo(f.dtype).tiny))
+        p_world = joint_anchors(self.joints, state)
+        tau = jnp.cross(c[None, :] - p_world, f[None, :]) * self.weight[:, None]  # sign_i tau_i / n_legs
+        t = step * self.dt
+        on = (t >= args["push_start"]) & (t < args["push_start"] + args["push_duration"])
+        body_ids = jnp.arange(self.bodies.num_bodies)
+        force = jnp.where((body_ids == args["push_body"])[:, None] & on, args["push_force"][None, :], 0.0)
+        return Control(force=force, joint_torque=tau, spd=StablePD(self.targets, args["kp"], args["kd"]))
 
 
 def _heights(character: Character, state: BodyState) -> tuple[np.ndarray, np.ndarray]:
@@ -329,10 +363,10 @@ def standing_pose(
        flat: its length and width axes horizontal;
     2. with ``lean``, turns the whole body about the ankles' midpoint (the feet are flattened again
        after the turn): a pitch about the horizontal axis normal to ``c_bar - c`` until the
-       horizontal centre of mass ``c`` sits on the support centre ``c_bar`` along that direction
-       (:func:`support_centre`) and, with two ankles, a roll about ``c_bar - c`` until both feet
+       horizontal center of mass ``c`` sits on the support center ``c_bar`` along that direction
+       (:func:`support_center`) and, with two ankles, a roll about ``c_bar - c`` until both feet
        are equally low (Newton iterations with finite differences);
-    3. moves the pose along the ground's normal so that its lowest contact point is ``clearance`` metres above
+    3. moves the pose along the ground's normal so that its lowest contact point is ``clearance`` meters above
        the character's ground plane.
 
     Joint angles other than the ankles' and toes' are unchanged. With unequal legs the roll leaves
@@ -401,8 +435,8 @@ def standing_pose(
         # [c_bar - c along d, height of the first foot's lowest point minus the second's]
         qs, ts = pose(theta[0] * np.cross(up, d) + theta[1] * d)
         s = character_state(character, qs, ts)
-        c, _ = center_of_mass(character.model.bodies, s)
-        r = [float(np.asarray(support_centre(character, s, foot_names=foot_names) - c) @ d)]
+        c, _ = bodies_center_of_mass(character.model.bodies, s)
+        r = [float(np.asarray(support_center(character, s, foot_names=foot_names) - c) @ d)]
         if len(ankles) == 2:
             cbody, h = _heights(character, s)
             r.append(float(h[body_below[cbody] == ankles[0]].min() - h[body_below[cbody] == ankles[1]].min()))
@@ -410,8 +444,8 @@ def standing_pose(
 
     qs, ts = pose(np.zeros(3))
     s = character_state(character, qs, ts)
-    c, _ = center_of_mass(character.model.bodies, s)
-    e = np.asarray(support_centre(character, s, foot_names=foot_names) - c)
+    c, _ = bodies_center_of_mass(character.model.bodies, s)
+    e = np.asarray(support_center(character, s, foot_names=foot_names) - c)
     e = e - (e @ up) * up
     if lean and np.linalg.norm(e) > 1e-9:
         d = e / np.linalg.norm(e)
@@ -436,10 +470,10 @@ def standing_pose(
 def stood(
     character: Character, initial: BodyState, trajectory: BodyState, *, height_tolerance: float = 0.05
 ) -> Array:
-    """Whether the character stayed up: its centre of mass never fell below ``1 - height_tolerance``
+    """Whether the character stayed up: its center of mass never fell below ``1 - height_tolerance``
     of its initial height (along up) in the recorded ``trajectory`` (leading time axis). A scalar
     bool; ``vmap`` it over a batch of rollouts."""
     up = jnp.asarray(_up(character.model.bodies), initial.position.dtype)
-    c0, _ = center_of_mass(character.model.bodies, initial)
-    heights = jax.vmap(lambda s: center_of_mass(character.model.bodies, s)[0])(trajectory) @ up
+    c0, _ = bodies_center_of_mass(character.model.bodies, initial)
+    heights = jax.vmap(lambda s: bodies_center_of_mass(character.model.bodies, s)[0])(trajectory) @ up
     return jnp.all(heights >= (1.0 - height_tolerance) * (c0 @ up))

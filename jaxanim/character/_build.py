@@ -23,9 +23,9 @@ the heaviest of them, the root body, which is free.
 **Joints.** Each non-root body is attached to its nearest bodied ancestor by a ball joint at its
 joint's position.
 
-**Units.** Simulation is in metres, seconds and kilograms with gravity ``-9.81`` along ``+Y``
+**Units.** Simulation is in meters, seconds and kilograms with gravity ``-9.81`` along ``+Y``
 (BVH's up axis). The file's unit is inferred from the skeleton's rest height (``height``, default
-1.7 m) unless ``unit`` (metres per file unit) is given; :func:`character_pose` writes poses back
+1.7 m) unless ``unit`` (meters per file unit) is given; :func:`character_pose` writes poses back
 in file units.
 """
 
@@ -39,16 +39,18 @@ from jaxtyping import Array, Float
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
-from ..physics._contact import Ground
 from ..kinematics._fk import forward_kinematics
-from ..physics._joints import Joints, make_joints
-from ..physics._model import PhysicsModel, make_model, to_mjcf
 from ..physics._bodies import BodyState, RigidBodies, make_bodies, make_state, shape_mass_properties
+from ..physics._contact import Ground
+from ..physics._control import Control, Servo, StablePD
+from ..physics._joints import Joints, make_joints
+from ..physics._mjcf import to_mjcf
+from ..physics._model import PhysicsModel, make_model
 from ..skeleton._skeleton import Skeleton
 
 __all__ = [
-    "Character", "build_character", "character_pose", "character_state", "export_mjcf", "root_body", "spd_targets",
-    "tracking_controller",
+    "Character", "TrackingController", "build_character", "character_pose", "character_state", "export_mjcf",
+    "root_body", "spd_targets", "tracking_controller",
 ]
 
 
@@ -56,14 +58,14 @@ class Character(eqx.Module):
     """A skeleton's physics model and the maps between its poses and body states.
 
     Attributes:
-        model: the :class:`~jaxanim.physics.PhysicsModel` (metres, kg).
+        model: the :class:`~jaxanim.physics.PhysicsModel` (meters, kg).
         skeleton: the skeleton (file units).
         body_joint: ``[nb]`` the skeleton joint that owns each body (static).
         joint_body: ``[joints]`` the body each skeleton joint moves with (its own, or its nearest
             bodied ancestor's; ``-1`` for bodiless joints above every body) (static).
-        unit: metres per file unit (static).
+        unit: meters per file unit (static).
         body_rotation: ``[nb, 4]`` each body's orientation in its joint's frame (wxyz).
-        body_centre: ``[nb, 3]`` each body's centre of mass in its joint's frame, metres.
+        body_center: ``[nb, 3]`` each body's center of mass in its joint's frame, meters.
     """
 
     model: PhysicsModel
@@ -72,11 +74,16 @@ class Character(eqx.Module):
     joint_body: tuple[int, ...] = eqx.field(static=True)
     unit: float = eqx.field(static=True)
     body_rotation: Float[Array, "nb 4"]
-    body_centre: Float[Array, "nb 3"]
+    body_center: Float[Array, "nb 3"]
 
     @property
     def num_bodies(self) -> int:
         return len(self.body_joint)
+
+    @property
+    def body_centre(self) -> Float[Array, "nb 3"]:
+        """The 0.1 spelling of :attr:`body_center`."""
+        return self.body_center
 
 
 def _segments(skeleton: Skeleton, j: int) -> np.ndarray:
@@ -111,73 +118,19 @@ def _radius(name: str, length: float, height: float, ratio: float) -> float:
     return float(np.clip(ratio * length, 0.025 * height, 0.07 * height))
 
 
-def build_character(
-    skeleton: Skeleton,
-    rotations: Float[Array, "joints 4"] | None = None,
-    translations: Float[Array, "joints 3"] | None = None,
-    *,
-    total_mass: float = 70.0,
-    height: float = 1.7,
-    unit: float | None = None,
-    radius_ratio: float = 0.2,
-    min_length: float = 0.035,
-    foot_names: tuple[str, ...] = ("Foot", "Toe"),
-    heel: float = 0.35,
-    sole_fit: float = 0.03,
-    ground: Ground | None = None,
-    erp: float = 0.5,
-    cfm: float = 1e-10,
-    scan_levels: bool = False,
-) -> tuple[Character, BodyState]:
-    """Build the character and its state at a pose (default: the rest pose).
-
-    Args:
-        skeleton: the skeleton (any unit).
-        rotations, translations: the pose to assemble in (file units; default rest).
-        total_mass: kg.
-        height: the rest-pose height in metres that sets the unit when ``unit`` is omitted.
-        unit: metres per file unit.
-        radius_ratio: capsule radius / segment length (then clamped, see the module docstring).
-        min_length: segments shorter than this fraction of the height are ignored.
-        foot_names: substrings of joint names whose bodies are boxes (soles, see the module
-            docstring).
-        heel: a foot's heel length behind its joint, as a fraction of the foot's length.
-        sole_fit: metres; soles less than this above the lowest one in the build pose are
-            deepened to reach its level (0: no fitting).
-        ground: the ground contact (default none; :func:`jaxanim.contact.make_ground`).
-        erp, cfm, scan_levels: as for :func:`jaxanim.physics.make_model`.
-
-    Returns:
-        ``(character, state)``: the :class:`Character` and the bodies' state at the pose, at rest.
+def _body_shapes(skeleton: Skeleton, p_world, R_world, unit: float, H: float, *, radius_ratio, min_length,
+                 foot_names, heel, sole_fit):
+    """The bodies of the joints with a segment, in the build pose ``(p_world [joints, 3] (meters),
+    R_world [joints, 3, 3])``: ``(body_joint, shapes, centers [3] in the joint frames, rotations
+    (quaternions) in the joint frames)`` (see the module docstring).
 
     Raises:
-        JaxanimError: non-positive mass, height or unit, or a skeleton without any segment.
+        JaxanimError: no segment is longer than ``min_length``.
     """
-    for name, value in (("total_mass", total_mass), ("height", height), ("radius_ratio", radius_ratio)):
-        if not value > 0:
-            raise JaxanimError(f"{name}: expected > 0, got {value!r}")
-    if not heel >= 0 or not sole_fit >= 0:
-        raise JaxanimError(f"heel, sole_fit: expected >= 0, got {heel!r}, {sole_fit!r}")
-    if unit is not None and not unit > 0:
-        raise JaxanimError(f"unit: expected > 0 (metres per file unit), got {unit!r}")
     J = skeleton.num_joints
-    offsets = jnp.broadcast_to(jnp.asarray(skeleton.offsets, jnp.float64), (J, 3))  # = rest translations
-    rest = _forward_kinematics(skeleton, skeleton.rest_rotations(jnp.float64), offsets)
-    pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions).reshape(-1, 3)])
-    file_height = float(pts[:, 1].max() - pts[:, 1].min())
-    if unit is None:
-        if not file_height > 0:
-            raise JaxanimError("skeleton: zero rest height along Y; give unit= (metres per file unit)")
-        unit = height / file_height
-    H = file_height * unit  # metres
-    # The build pose (world frame, metres): soles are laid flat in it.
-    q_build, t_build = _pose(skeleton, rotations, translations)
-    fk = _forward_kinematics(skeleton, q_build, offsets if t_build is None else t_build)
-    p_world = np.asarray(fk.positions) * unit
-    R_world = np.asarray(fk.rotations)
     up = np.array([0.0, 1.0, 0.0])
-    # Bodies: shapes in the joint frames (metres).
-    body_joint, shapes, centres, body_rots = [], [], [], []
+    # Bodies: shapes in the joint frames (meters).
+    body_joint, shapes, centers, body_rots = [], [], [], []
     soles = []  # (body, bottom height in the build pose)
     for j in range(J):
         seg = _segments(skeleton, j) * unit
@@ -206,15 +159,15 @@ def build_character(
             back = heel * Lh if parent < 0 or not any(s in skeleton.names[parent] for s in foot_names) else 0.0
             z = s_h / Lh
             shapes.append(["box", [2 * r, 1.2 * r, Lh + back]])
-            centres.append(0.5 * (Lh - back) * z + min(0.0, float(s_w @ up)) * up)  # world, fixed below
+            centers.append(0.5 * (Lh - back) * z + min(0.0, float(s_w @ up)) * up)  # world, fixed below
             body_rots.append(np.stack([np.cross(up, z), up, z], axis=1))  # world; local below
-            soles.append((len(body_joint) - 1, float(p_world[j] @ up + centres[-1] @ up) - 0.6 * r))
+            soles.append((len(body_joint) - 1, float(p_world[j] @ up + centers[-1] @ up) - 0.6 * r))
             continue
         if is_foot:
             shapes.append(("box", (2 * r, 1.2 * r, L)))
         else:
             shapes.append(("capsule", (r, max(L - 2 * r, 0.2 * L))))
-        centres.append(0.5 * L * d)
+        centers.append(0.5 * L * d)
         body_rots.append(d)  # the capsule's axis; a rotation below
     # Soles within `sole_fit` above the lowest one reach down to it (mocap feet are rarely level).
     level = min((h for _, h in soles), default=0.0)
@@ -222,7 +175,7 @@ def build_character(
         gap = h - level if h - level <= sole_fit else 0.0
         shapes[b][1][1] += gap
         j = body_joint[b]
-        centres[b] = R_world[j].T @ (centres[b] - 0.5 * gap * up)
+        centers[b] = R_world[j].T @ (centers[b] - 0.5 * gap * up)
         body_rots[b] = R_world[j].T @ body_rots[b]
         shapes[b] = (shapes[b][0], tuple(shapes[b][1]))
     if not body_joint:
@@ -236,6 +189,90 @@ def build_character(
         axes = jnp.asarray(np.stack([d for d in body_rots if np.ndim(d) == 1]))
         quats[~sole] = np.asarray(_rotation_between(jnp.array([0.0, 0.0, 1.0]), axes))
     body_rots = list(quats)
+    return body_joint, shapes, centers, body_rots
+
+
+def _joint_specs(skeleton: Skeleton, body_joint, joint_body, masses, p_world) -> list[dict]:
+    """Ball joints to the nearest bodied ancestor, at the joints' positions; top-level bodies hang
+    off the heaviest one (the root body, left free)."""
+    top = [b for b, j in enumerate(body_joint) if skeleton.parents[j] < 0 or joint_body[skeleton.parents[j]] < 0]
+    root = max(top, key=lambda b: masses[b])
+    specs = []
+    for b, j in enumerate(body_joint):
+        if b == root:
+            continue
+        parent = root if b in top else joint_body[skeleton.parents[j]]
+        specs.append(dict(name=skeleton.names[j], type="ball", parent=int(parent), child=int(b), anchor=p_world[j]))
+    return specs
+
+
+def build_character(
+    skeleton: Skeleton,
+    rotations: Float[Array, "joints 4"] | None = None,
+    translations: Float[Array, "joints 3"] | None = None,
+    *,
+    total_mass: float = 70.0,
+    height: float = 1.7,
+    unit: float | None = None,
+    radius_ratio: float = 0.2,
+    min_length: float = 0.035,
+    foot_names: tuple[str, ...] = ("Foot", "Toe"),
+    heel: float = 0.35,
+    sole_fit: float = 0.03,
+    ground: Ground | None = None,
+    erp: float = 0.5,
+    cfm: float = 1e-10,
+    scan_levels: bool = False,
+) -> tuple[Character, BodyState]:
+    """Build the character and its state at a pose (default: the rest pose).
+
+    Args:
+        skeleton: the skeleton (any unit).
+        rotations, translations: the pose to assemble in (file units; default rest).
+        total_mass: kg.
+        height: the rest-pose height in meters that sets the unit when ``unit`` is omitted.
+        unit: meters per file unit.
+        radius_ratio: capsule radius / segment length (then clamped, see the module docstring).
+        min_length: segments shorter than this fraction of the height are ignored.
+        foot_names: substrings of joint names whose bodies are boxes (soles, see the module
+            docstring).
+        heel: a foot's heel length behind its joint, as a fraction of the foot's length.
+        sole_fit: meters; soles less than this above the lowest one in the build pose are
+            deepened to reach its level (0: no fitting).
+        ground: the ground contact (default none; :func:`jaxanim.contact.make_ground`).
+        erp, cfm, scan_levels: as for :func:`jaxanim.physics.make_model`.
+
+    Returns:
+        ``(character, state)``: the :class:`Character` and the bodies' state at the pose, at rest.
+
+    Raises:
+        JaxanimError: non-positive mass, height or unit, or a skeleton without any segment.
+    """
+    for name, value in (("total_mass", total_mass), ("height", height), ("radius_ratio", radius_ratio)):
+        if not value > 0:
+            raise JaxanimError(f"{name}: expected > 0, got {value!r}")
+    if not heel >= 0 or not sole_fit >= 0:
+        raise JaxanimError(f"heel, sole_fit: expected >= 0, got {heel!r}, {sole_fit!r}")
+    if unit is not None and not unit > 0:
+        raise JaxanimError(f"unit: expected > 0 (meters per file unit), got {unit!r}")
+    J = skeleton.num_joints
+    offsets = jnp.broadcast_to(jnp.asarray(skeleton.offsets, jnp.float64), (J, 3))  # = rest translations
+    rest = _forward_kinematics(skeleton, skeleton.rest_rotations(jnp.float64), offsets)
+    pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions).reshape(-1, 3)])
+    file_height = float(pts[:, 1].max() - pts[:, 1].min())
+    if unit is None:
+        if not file_height > 0:
+            raise JaxanimError("skeleton: zero rest height along Y; give unit= (meters per file unit)")
+        unit = height / file_height
+    H = file_height * unit  # meters
+    # The build pose (world frame, meters): soles are laid flat in it.
+    q_build, t_build = _pose(skeleton, rotations, translations)
+    fk = _forward_kinematics(skeleton, q_build, offsets if t_build is None else t_build)
+    p_world = np.asarray(fk.positions) * unit
+    R_world = np.asarray(fk.rotations)
+    body_joint, shapes, centers, body_rots = _body_shapes(skeleton, p_world, R_world, unit, H, radius_ratio=radius_ratio,
+                                                          min_length=min_length, foot_names=foot_names, heel=heel,
+                                                          sole_fit=sole_fit)
     vols = np.array([float(shape_mass_properties(k, s, density=1.0)[0]) for k, s in shapes])
     masses = total_mass * vols / vols.sum()
     names = tuple(skeleton.names[j] for j in body_joint)
@@ -250,18 +287,10 @@ def build_character(
         joint_body.append(index[a] if a >= 0 else -1)
     char = Character(
         model=None, skeleton=skeleton, body_joint=tuple(body_joint), joint_body=tuple(joint_body), unit=float(unit),
-        body_rotation=jnp.asarray(np.stack(body_rots)), body_centre=jnp.asarray(np.stack(centres)),
+        body_rotation=jnp.asarray(np.stack(body_rots)), body_center=jnp.asarray(np.stack(centers)),
     )
     state = character_state(char, rotations, translations, bodies=bodies)
-    # Joints: to the nearest bodied ancestor; top-level bodies hang off the heaviest one.
-    top = [b for b, j in enumerate(body_joint) if skeleton.parents[j] < 0 or joint_body[skeleton.parents[j]] < 0]
-    root = max(top, key=lambda b: masses[b])
-    specs = []
-    for b, j in enumerate(body_joint):
-        if b == root:
-            continue
-        parent = root if b in top else joint_body[skeleton.parents[j]]
-        specs.append(dict(name=skeleton.names[j], type="ball", parent=int(parent), child=int(b), anchor=p_world[j]))
+    specs = _joint_specs(skeleton, body_joint, joint_body, masses, p_world)
     joints: Joints = make_joints(bodies, state, specs)
     model = make_model(bodies, joints, ground=ground, erp=erp, cfm=cfm, scan_levels=scan_levels)
     return eqx.tree_at(lambda c: c.model, char, model, is_leaf=lambda x: x is None), state
@@ -300,7 +329,7 @@ def _character_state(character: Character, q, t, bodies: RigidBodies) -> BodySta
     fk = forward_kinematics(skel, q, t)
     bj = np.asarray(character.body_joint)
     R = fk.rotations[bj]
-    x = fk.positions[bj] * character.unit + jnp.einsum("bij,bj->bi", R, character.body_centre)
+    x = fk.positions[bj] * character.unit + jnp.einsum("bij,bj->bi", R, character.body_center)
     orientation = rot.quat_multiply(rot.matrix_to_quat(R), character.body_rotation)
     return make_state(bodies, position=x, orientation=orientation)
 
@@ -317,7 +346,7 @@ def character_pose(
     ref = skel.rest_rotations(state.position.dtype) if reference is None else jnp.asarray(reference)
     bj = np.asarray(character.body_joint)
     q_body_joint = rot.quat_multiply(state.orientation, rot.quat_conjugate(character.body_rotation))
-    p_body_joint = state.position - rot.quat_apply(q_body_joint, character.body_centre)
+    p_body_joint = state.position - rot.quat_apply(q_body_joint, character.body_center)
     own = {int(j): b for b, j in enumerate(bj)}
     # World rotations top-down (parents precede children in a Skeleton).
     q_world: list = [None] * J
@@ -379,6 +408,37 @@ def root_body(character: Character) -> int:
     return next(b for b in range(character.num_bodies) if b not in children)
 
 
+class TrackingController(eqx.Module):
+    """The controller of :func:`tracking_controller`: a clip's stable-PD targets and root poses,
+    looped (a Module, so that two controllers of clips with the same shapes share one compiled
+    rollout).
+
+    Attributes:
+        root: the root body (static).
+        targets: ``[frames, joints, 4]`` every frame's SPD targets (:func:`spd_targets`).
+        root_position, root_orientation: ``[frames, 3]``, ``[frames, 4]`` the root body's pose in
+            every frame (world frame, m; wxyz).
+        dt: the control step, seconds.
+        fps: the clip's frame rate.
+    """
+
+    root: int = eqx.field(static=True)
+    targets: Float[Array, "frames joints 4"]
+    root_position: Float[Array, "frames 3"]
+    root_orientation: Float[Array, "frames 4"]
+    dt: Float[Array, ""]
+    fps: Float[Array, ""]
+
+    def __call__(self, state: BodyState, step, args) -> Control:
+        """The :class:`~jaxanim.physics.Control` of step ``step`` with the gains ``args``."""
+        frames = self.targets.shape[0]
+        # + 1e-6: a frame boundary hit exactly
+        f = jnp.floor(step * self.dt * self.fps + 1e-6).astype(jnp.int32) % frames
+        servo = Servo(self.root, self.root_position[f], self.root_orientation[f], args["root_kp"], args["root_kd"],
+                      args["root_angular_kp"], args["root_angular_kd"])
+        return Control(spd=StablePD(self.targets[f], args["kp"], args["kd"]), servo=servo)
+
+
 def tracking_controller(
     character: Character,
     motion,
@@ -390,7 +450,7 @@ def tracking_controller(
     root_kp: float = 200.0,
     root_angular_kp: float = 1000.0,
     root_angular_kd: float = 140.0,
-) -> tuple:
+) -> tuple[TrackingController, dict]:
     """A stable-PD controller that tracks ``motion`` (looping) for :func:`jaxanim.physics.rollout`.
 
     Every step ``k`` takes frame ``floor(k dt fps) mod frames`` of the clip: the joints' SPD
@@ -399,19 +459,17 @@ def tracking_controller(
     ``root_angular_kp`` N m / rad with damping ``root_angular_kd`` N m s / rad.
 
     Returns:
-        ``(controller, args)`` for ``rollout(..., controller=controller, controller_args=args)``;
-        ``args`` is a dict of arrays (``kp``, ``kd`` per joint, ``root_kp``, ``root_kd``,
-        ``root_angular_kp``, ``root_angular_kd``), so ``vmap`` can sweep the gains.
+        ``(controller, args)`` for ``rollout(..., controller=controller, controller_args=args)``:
+        the :class:`TrackingController` (it returns a :class:`~jaxanim.physics.Control`; clips
+        with the same number of frames on the same character give controllers of the same
+        structure, so the rollout compiles once) and ``args``, a dict of arrays (``kp``, ``kd``
+        per joint, ``root_kp``, ``root_kd``, ``root_angular_kp``, ``root_angular_kd``), so
+        ``vmap`` can sweep the gains.
     """
-    Q, T = motion.rotations, motion.translations
-    F = int(Q.shape[0])
-    targets_all, states_all = _clip_targets(character, Q, T)
+    targets, states = _clip_targets(character, motion.rotations, motion.translations)
     root = root_body(character)
-    root_x = states_all.position[:, root]
-    root_q = states_all.orientation[:, root]
     mass = float(jnp.sum(character.model.bodies.mass))
     nj = character.model.joints.num_joints
-    fps = float(motion.fps)
     args = dict(
         kp=jnp.full((nj,), kp), kd=jnp.full((nj,), kd),
         root_kp=jnp.asarray(root_kp * mass if root_force else 0.0),
@@ -419,10 +477,7 @@ def tracking_controller(
         root_angular_kp=jnp.asarray(root_angular_kp if root_force else 0.0),
         root_angular_kd=jnp.asarray(root_angular_kd if root_force else 0.0),
     )
-
-    def controller(state, step, a):
-        f = jnp.floor(step * dt * fps + 1e-6).astype(jnp.int32) % F  # + 1e-6: a frame boundary hit exactly
-        servo = (root, root_x[f], root_q[f], a["root_kp"], a["root_kd"], a["root_angular_kp"], a["root_angular_kd"])
-        return dict(spd=(targets_all[f], a["kp"], a["kd"]), servo=servo)
-
+    controller = TrackingController(root=root, targets=targets, root_position=states.position[:, root],
+                                    root_orientation=states.orientation[:, root], dt=jnp.asarray(float(dt)),
+                                    fps=jnp.asarray(float(motion.fps)))
     return controller, args

@@ -1,5 +1,6 @@
 """Rigid-body simulation in maximal coordinates: bodies and their mass properties, joints with
-limits, ground contact, the model, one step, rollouts and MJCF export.
+limits, ground contact, the model, the typed inputs of a step (Control), one step, rollouts and MJCF
+export.
 """
 
 from ._bodies import (
@@ -7,6 +8,7 @@ from ._bodies import (
     RigidBodies as RigidBodies,
     SHAPES as SHAPES,
     angular_momentum as angular_momentum,
+    bodies_center_of_mass as bodies_center_of_mass,
     box_inertia as box_inertia,
     capsule_inertia as capsule_inertia,
     force_at_point as force_at_point,
@@ -34,13 +36,20 @@ from ._contact import (
     contact_points as contact_points,
     make_ground as make_ground,
 )
+from ._control import (
+    Control as Control,
+    Servo as Servo,
+    StablePD as StablePD,
+)
 from ._model import (
     PhysicsModel as PhysicsModel,
-    Rollout as Rollout,
-    SimResult as SimResult,
     joint_error as joint_error,
     make_model as make_model,
-    rollout as rollout,
-    step as step,
-    to_mjcf as to_mjcf,
 )
+from ._step import step as step
+from ._rollout import (
+    Rollout as Rollout,
+    SimResult as SimResult,
+    rollout as rollout,
+)
+from ._mjcf import to_mjcf as to_mjcf

@@ -1,9 +1,9 @@
 r"""Rigid bodies in maximal coordinates: mass properties from geometry, state, and Newton-Euler
 stepping of free bodies.
 
-Each body has its centre of mass ``x`` (world), orientation ``q`` (wxyz, body to world), linear
+Each body has its center of mass ``x`` (world), orientation ``q`` (wxyz, body to world), linear
 velocity ``v`` and angular velocity ``omega`` (both world frame), a mass ``m`` and an inertia
-``I0`` about the centre of mass in its body frame; the world inertia is ``I = R I0 R'``
+``I0`` about the center of mass in its body frame; the world inertia is ``I = R I0 R'``
 (course notes §1.L). The model (:class:`RigidBodies`: masses, inertias, shapes, gravity) is split
 from the state (:class:`BodyState`) in the manner of MJX's Model / Data.
 
@@ -14,7 +14,7 @@ form. Newton-Euler ``m dv/dt = f``, ``d(I omega)/dt = tau`` (which is
     v_{n+1}  = v_n + h (f / m + g)
     L        = I_n omega_n + h tau                          (angular momentum, world frame)
     x_{n+1}  = x_n + h v_{n+1}
-    q_{n+1}  = normalise(q_n + (h/2) [0, I_n^{-1} L] q_n)
+    q_{n+1}  = normalize(q_n + (h/2) [0, I_n^{-1} L] q_n)
     omega_{n+1} = I_{n+1}^{-1} L,   I_{n+1} = R_{n+1} I0 R_{n+1}'
 
 The translation is exactly the notes' eq. 6.15-6.16. The rotation differs from eq. 6.15, which
@@ -44,6 +44,7 @@ __all__ = [
     "RigidBodies",
     "SHAPES",
     "angular_momentum",
+    "bodies_center_of_mass",
     "box_inertia",
     "capsule_inertia",
     "force_at_point",
@@ -62,7 +63,7 @@ SHAPES = ("box", "sphere", "capsule")
 
 
 # --------------------------------------------------------------------------------------------
-# Mass properties of primitive shapes (about the centre of mass, principal axes).
+# Mass properties of primitive shapes (about the center of mass, principal axes).
 # --------------------------------------------------------------------------------------------
 
 
@@ -83,12 +84,12 @@ def capsule_inertia(
     mass: Float[ArrayLike, ""], radius: Float[ArrayLike, ""], length: Float[ArrayLike, ""]
 ) -> Float[Array, "3 3"]:
     """Inertia of a solid capsule along the body ``z`` axis: a cylinder of radius ``r`` and length
-    ``length`` (between the centres of the end caps) plus two hemispheres, uniform density.
+    ``length`` (between the centers of the end caps) plus two hemispheres, uniform density.
 
     Along the axis ``I_zz = m_c r^2 / 2 + 2/5 m_s r^2``; across it
     ``I_xx = m_c (l^2/12 + r^2/4) + m_s (2/5 r^2 + l^2/4 + 3/8 l r)`` with ``m_c``, ``m_s`` the
     masses of the cylinder and of the two caps together (the caps' parallel-axis offset is
-    ``l/2 + 3r/8``; the cap's inertia about its own centre of mass is ``83/320 m r^2`` across).
+    ``l/2 + 3r/8``; the cap's inertia about its own center of mass is ``83/320 m r^2`` across).
     """
     m, r, l = (jnp.asarray(v) for v in (mass, radius, length))
     v_cyl = jnp.pi * r * r * l
@@ -117,7 +118,7 @@ def shape_mass_properties(
     Args:
         kind: ``"box"`` (``size = [a, b, c]`` full side lengths), ``"sphere"`` (``size = [r]``) or
             ``"capsule"`` (``size = [r, length]``, axis along body ``z``, ``length`` between the
-            cap centres).
+            cap centers).
         size: the dimensions, positive.
         mass: the body's mass, or
         density: its density (mass = density x volume).
@@ -160,10 +161,10 @@ class RigidBodies(eqx.Module):
         names: ``[B]`` body names (static).
         shapes: ``[B]`` shape kinds (``"box"``, ``"sphere"``, ``"capsule"``; static).
         mass: ``[B]`` masses, kg, positive.
-        inertia: ``[B, 3, 3]`` inertias about the centre of mass in the body frame, kg m^2,
+        inertia: ``[B, 3, 3]`` inertias about the center of mass in the body frame, kg m^2,
             symmetric positive definite.
         size: ``[B, 3]`` shape dimensions (box sides; sphere ``[r, 0, 0]``; capsule
-            ``[r, length, 0]``), metres.
+            ``[r, length, 0]``), meters.
         gravity: ``[3]`` gravitational acceleration, m/s^2 (default ``[0, -9.81, 0]``: BVH clips are
             Y-up).
     """
@@ -184,9 +185,9 @@ class BodyState(eqx.Module):
     """The evolving part (the state) of a set of rigid bodies.
 
     Attributes:
-        position: ``[B, 3]`` centres of mass, world frame, metres.
+        position: ``[B, 3]`` centers of mass, world frame, meters.
         orientation: ``[B, 4]`` unit quaternions (wxyz), body to world.
-        linear_velocity: ``[B, 3]`` centre-of-mass velocities, world frame.
+        linear_velocity: ``[B, 3]`` center-of-mass velocities, world frame.
         angular_velocity: ``[B, 3]`` angular velocities, world frame, rad/s.
         time: seconds.
     """
@@ -285,7 +286,7 @@ def make_state(
     time: float = 0.0,
 ) -> BodyState:
     """A :class:`BodyState` for ``model`` (omitted fields: origin, identity, at rest); the
-    orientations are normalised.
+    orientations are normalized.
 
     Raises:
         JaxanimError: a field does not have shape ``[B, 3]`` / ``[B, 4]``, or a quaternion is zero.
@@ -373,6 +374,15 @@ def _spd_inverse(A):
 
 
 
+def bodies_center_of_mass(bodies: RigidBodies, state: BodyState) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
+    """The bodies' center of mass and its velocity ``(c [3], c_dot [3])`` (world frame, m, m/s).
+
+    (Not :func:`jaxanim.center_of_mass`, the center of mass of a skeleton pose from segment masses.)
+    """
+    m = bodies.mass / jnp.sum(bodies.mass)
+    return m @ state.position, m @ state.linear_velocity
+
+
 def linear_momentum(model: RigidBodies, state: BodyState) -> Float[Array, " 3"]:
     """Total linear momentum ``sum m v``."""
     return jnp.sum(model.mass[:, None] * state.linear_velocity, axis=0)
@@ -404,7 +414,7 @@ def potential_energy(model: RigidBodies, state: BodyState) -> Float[Array, ""]:
 def force_at_point(
     position: Float[ArrayLike, "*batch 3"], force: Float[ArrayLike, "*batch 3"], point: Float[ArrayLike, "*batch 3"]
 ) -> tuple[Float[Array, "*batch 3"], Float[Array, "*batch 3"]]:
-    """A force applied at a world point, reduced to the centre of mass ``position``:
+    """A force applied at a world point, reduced to the center of mass ``position``:
     ``(force, (point - position) x force)``."""
     f = jnp.asarray(force)
     return f, jnp.cross(jnp.asarray(point) - jnp.asarray(position), f)
@@ -416,7 +426,7 @@ def force_at_point(
 
 
 def _integrate_orientation(q: Float[Array, "B 4"], omega: Float[Array, "B 3"], h) -> Float[Array, "B 4"]:
-    """``normalise(q + (h/2) [0, omega] q)`` (omega in the world frame)."""
+    """``normalize(q + (h/2) [0, omega] q)`` (omega in the world frame)."""
     w = jnp.concatenate([jnp.zeros_like(omega[:, :1]), omega], axis=-1)
     return rot.quat_normalize(q + 0.5 * h * rot.quat_multiply(w, q))
 
@@ -470,7 +480,7 @@ def step_free(
         model: the bodies.
         state: their state.
         dt: the step, seconds.
-        force: ``[B, 3]`` external forces at the centres of mass, world frame, N (default 0; use
+        force: ``[B, 3]`` external forces at the centers of mass, world frame, N (default 0; use
             :func:`force_at_point` for a force elsewhere).
         torque: ``[B, 3]`` external torques, world frame, N m (default 0).
 

@@ -2,13 +2,13 @@ r"""Contact of rigid bodies with a ground plane: detection, the penalty model an
 model with Coulomb friction.
 
 **Detection.** Each shape carries static contact points in its body frame with a radius: a box its
-8 corners (radius 0), a sphere its centre (radius ``r``), a capsule the centres of its two caps
+8 corners (radius 0), a sphere its center (radius ``r``), a capsule the centers of its two caps
 (radius ``r``). For the plane ``n . p = offset`` a point ``p`` (world) of radius ``r`` has the signed
 distance ``phi = n . p - offset - r`` (negative: penetrating) and touches at ``c = p - r n``.
 
 **Penalty** (course notes eq. 6.25): at every penetrating point a normal force
 ``f_n = max(0, -k_p phi - k_d v_n)`` and kinetic Coulomb friction ``f_t = -mu f_n v_t / |v_t|``
-(``|v_t|`` regularised by 1 mm/s), applied at ``c`` as external loads for the step. Stiff
+(``|v_t|`` regularized by 1 mm/s), applied at ``c`` as external loads for the step. Stiff
 ``k_p`` needs small steps (the notes' warning).
 
 **Complementarity** (eq. 6.26-6.27, with friction): per point three velocity rows (normal ``n``,
@@ -48,12 +48,12 @@ class Ground(eqx.Module):
         model: ``"none"``, ``"penalty"`` or ``"complementarity"`` (static).
         iterations: projected Gauss-Seidel sweeps (static; complementarity).
         normal: ``[3]`` unit normal pointing out of the ground.
-        offset: the plane's offset along the normal, metres.
+        offset: the plane's offset along the normal, meters.
         friction: Coulomb coefficient ``mu``.
         stiffness: penalty ``k_p``, N/m.
         damping: penalty ``k_d``, N s/m.
         erp: fraction of the penetration (beyond ``slop``) removed per step (complementarity).
-        slop: penetration tolerated without correction, metres (complementarity).
+        slop: penetration tolerated without correction, meters (complementarity).
         max_points: solve only this many contact points per step, the lowest ones (static;
             ``None``: all; complementarity).
     """
@@ -84,7 +84,7 @@ def make_ground(
     max_points: int | None = None,
     dtype=None,
 ) -> Ground:
-    """A :class:`Ground`; the normal is normalised (default ``+Y``, BVH's up axis).
+    """A :class:`Ground`; the normal is normalized (default ``+Y``, BVH's up axis).
 
     ``max_points`` (complementarity) caps the contact points solved per step to the lowest ones
     (smallest signed distance): the cost of the contact solve grows with them, and a standing

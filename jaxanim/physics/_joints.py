@@ -64,7 +64,7 @@ class Joints(eqx.Module):
         parent: ``[J]`` parent body index, ``-1`` for the world (static).
         child: ``[J]`` child body index (static).
         anchor_parent: ``[J, 3]`` the anchor in the parent's body frame (world frame for the
-            world), metres.
+            world), meters.
         anchor_child: ``[J, 3]`` the anchor in the child's body frame.
         axis_parent: ``[J, 3]`` unit axis in the parent frame: the hinge axis, or the universal
             joint's first axis (unused otherwise).

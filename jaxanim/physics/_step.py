@@ -1,0 +1,267 @@
+r"""One time step of the articulated bodies (:func:`step`; the method is in :mod:`jaxanim.physics._model`).
+
+The loads and drives of a step are a :class:`~jaxanim.physics.Control`; the 0.1 keywords
+(``force=``, ``torque=``, ``joint_torque=``, ``spd=(targets, kp, kd)``, ``servo=(body, x, q, ...)``)
+are converted to one by :func:`~jaxanim.physics._control._as_control` at the boundary.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .. import rotations as rot
+from ._bodies import BodyState, _check_loads, _free_velocities, _integrate
+from ._contact import contact_rows, penalty_loads, projected_gauss_seidel
+from ._control import Control, Servo, StablePD, _as_control
+from ._joints import joint_errors, joint_rows, limit_rows
+from ._model import PhysicsModel
+from ._tree_solve import _plan, _tree_solve
+
+__all__ = ["step"]
+
+
+def _apply_joint_torques(model: PhysicsModel, torque: Array, joint_torque: Array) -> Array:
+    par = np.asarray(model.joints.parent)
+    chi = np.asarray(model.joints.child)
+    torque = torque.at[chi].add(joint_torque)
+    has = par >= 0
+    if np.any(has):
+        torque = torque.at[par[has]].add(-joint_torque[np.nonzero(has)[0]])
+    return torque
+
+
+def _joint_blocks(model: PhysicsModel, state: BodyState, h, spd: StablePD | None):
+    """Each joint's rows ``(J_p [J, k, 6], J_c [J, k, 6], b [J, k], C [J, k])``: the 3 anchor rows,
+    the type's angular rows (padded to the model's largest count with ``J = 0``, ``C = 1``) with
+    targets ``-(erp / h) g``, and with ``spd`` 3 stable-PD rows on the relative angular velocity.
+
+    The stable-PD law ``tau = k_p (e - h w) - k_d w`` (``w`` the new relative angular velocity, ``e``
+    the error at step ``n``) is the soft row ``w + C lambda = b`` on the impulse ``lambda = h tau``
+    with ``b = k_p e / (h k_p + k_d)`` and ``C = 1 / (h (h k_p + k_d))`` (:func:`_soft_gains`).
+    """
+    joints = model.joints
+    dtype = state.position.dtype
+    Jp6, Jc6, g = joint_rows(joints, state)
+    mask = joints.row_mask
+    nh = int(mask.sum(axis=1).max())
+    mask = jnp.asarray(mask[:, :nh])
+    Jp, Jc = Jp6[:, :nh], Jc6[:, :nh]
+    b = jnp.where(mask, -(model.erp / h) * g[:, :nh], 0.0)
+    C = jnp.where(mask, model.cfm, 1.0)
+    if spd is not None:
+        e, _ = joint_errors(joints, state, rot.quat_normalize(spd.targets))
+        bm, cm, active = _soft_gains(e, spd.kp[:, None], spd.kd[:, None], h)
+        eye = jnp.where(active[:, :, None], jnp.eye(3, dtype=dtype)[None], 0.0)  # [J, 3, 3]
+        zero = jnp.zeros_like(eye)
+        Jc = jnp.concatenate([Jc, jnp.concatenate([zero, eye], axis=-1)], axis=1)
+        Jp = jnp.concatenate([Jp, jnp.concatenate([zero, -eye], axis=-1)], axis=1)
+        b = jnp.concatenate([b, bm], axis=1)
+        C = jnp.concatenate([C, jnp.where(active, cm + model.cfm, 1.0)], axis=1)
+    return Jp, Jc, b, C
+
+
+def _soft_gains(e, kp, kd, h):
+    """The soft constraint ``J v + cfm lambda = b`` of the implicit PD law
+    ``tau = k_p (e - h J v) - k_d J v`` on the impulse ``lambda = h tau``: ``b = k_p e / (h k_p +
+    k_d)``, ``cfm = 1 / (h (h k_p + k_d))``, broadcast to ``e``'s shape, with the mask of driven
+    rows (``h k_p + k_d > 0``); rows not driven get ``b = 0``, ``cfm = 1`` and must have ``J = 0``."""
+    c = jnp.broadcast_to(h * kp + kd, e.shape)
+    active = c > 0
+    c_safe = jnp.where(active, c, 1.0)
+    b = jnp.where(active, jnp.broadcast_to(kp, e.shape) * e / c_safe, 0.0)
+    cfm = jnp.where(active, 1.0 / (h * c_safe), 1.0)
+    return b, cfm, active
+
+
+def _servo_rows(state: BodyState, servo: Servo, h):
+    """The stable-PD rows pulling one body to a world pose (the "hand of God") on the body's
+    ``[v; omega]``, as the soft rows of :func:`_joint_blocks`: ``(b [6], cfm [6], active [6])``."""
+    body = servo.body
+    e_lin = servo.position - state.position[body]
+    q_target_body = rot.quat_multiply(servo.orientation, rot.quat_conjugate(state.orientation[body]))
+    e_ang = rot.quat_to_rotvec(rot.quat_canonical(q_target_body))
+    e = jnp.stack([e_lin, e_ang])  # [2, 3]
+    kp = jnp.stack([servo.kp_linear, servo.kp_angular])[:, None]
+    kd = jnp.stack([servo.kd_linear, servo.kd_angular])[:, None]
+    b, cfm, active = _soft_gains(e, kp, kd, h)
+    return b.reshape(6), cfm.reshape(6), active.reshape(6)
+
+
+def _inertia_and_momentum(model: PhysicsModel, state: BodyState, v, w, I_n, h, servo: Servo | None):
+    """``(M [bodies, 6, 6], p [bodies, 6])``: ``M = diag(m I, I_n)`` and ``p = M [v*; omega*]``, with
+    the servo's soft rows folded into its body's inertia and momentum."""
+    dtype = v.dtype
+    B = model.bodies.num_bodies
+    zeros33 = jnp.zeros((B, 3, 3), dtype)
+    m_eye = model.bodies.mass[:, None, None] * jnp.eye(3, dtype=dtype)[None]
+    M = jnp.concatenate([jnp.concatenate([m_eye, zeros33], -1), jnp.concatenate([zeros33, I_n], -1)], 1)
+    V = jnp.concatenate([v, w], axis=-1)
+    p = jnp.einsum("bij,bj->bi", M, V)
+    if servo is not None:
+        bs, cs, active = _servo_rows(state, servo, h)
+        k = jnp.where(active, 1.0 / (cs + model.cfm), 0.0)
+        M = M.at[servo.body].add(jnp.diag(k))
+        p = p.at[servo.body].add(k * bs)
+    return M, p
+
+
+def _one_sided_rows(model: PhysicsModel, state: BodyState, h):
+    """The one-sided rows: contacts (normal, t1, t2 per point) then joint limits, each on body
+    ``owner_a`` (``rows_a [U, 6]``); the ``L`` limit rows (the last ones) also act on their parent
+    body ``owner_b`` (``rows_b [L, 6]``; zero for a joint to the world).
+
+    Returns:
+        ``(owner_a [U], rows_a [U, 6], target [U], L, owner_b [L], rows_b [L, 6])``, or ``None``
+        when there is no one-sided row.
+    """
+    owner_a, rows_a, target = [], [], []
+    if model.ground.model == "complementarity":
+        owner, rows, tc = contact_rows(model.ground, model.bodies, state, h)
+        owner_a.append(owner)
+        rows_a.append(rows)
+        target.append(tc)
+    lj, axes, phi = limit_rows(model.joints, state)
+    L = lj.size
+    owner_b = rows_b = None
+    if L:
+        zero3 = jnp.zeros_like(axes)
+        par = np.asarray(model.joints.parent)[lj]
+        chi = np.asarray(model.joints.child)[lj]
+        owner_a.append(jnp.asarray(chi))
+        rows_a.append(jnp.concatenate([zero3, axes], -1))
+        owner_b = jnp.asarray(np.where(par >= 0, par, chi))
+        rows_b = jnp.concatenate([zero3, jnp.where(jnp.asarray(par >= 0)[:, None], -axes, 0.0)], -1)
+        target.append(jnp.where(phi > 0, -phi / h, (model.erp / h) * (-phi)))
+    if not target:
+        return None
+    return jnp.concatenate(owner_a), jnp.concatenate(rows_a), jnp.concatenate(target), L, owner_b, rows_b
+
+
+def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd: StablePD | None,
+                       servo: Servo | None):
+    """Velocities after the joint, stable-PD, servo and (complementarity) contact impulses.
+
+    The joints (with their stable-PD rows) are solved exactly by :func:`_tree_solve`; the servo's
+    soft rows on one body are folded into that body's inertia; the one-sided rows' effect is found
+    by the same solve for each row (their Delassus matrix ``A = J_u H^{-1} J_u'`` with the joints
+    eliminated exactly) and projected Gauss-Seidel on ``A``.
+    """
+    dtype = v.dtype
+    B = model.bodies.num_bodies
+    Jn = model.joints.num_joints
+    if Jn == 0 and servo is None and model.ground.model != "complementarity":
+        return v, w
+    M, p = _inertia_and_momentum(model, state, v, w, I_n, h, servo)
+    if Jn:
+        Jp, Jc, b, C = _joint_blocks(model, state, h, spd)
+    else:
+        Jp = Jc = jnp.zeros((0, 1, 6), dtype)
+        b, C = jnp.zeros((0, 1), dtype), jnp.ones((0, 1), dtype)
+    plan = _plan(model.joints.parent, model.joints.child, B)
+    one_sided = _one_sided_rows(model, state, h)
+    if one_sided is None:
+        return _split(_tree_solve(plan, M, p[..., None], Jp, Jc, b[..., None], C, model.scan_levels)[..., 0])
+    owner_a, rows_a, target, L, owner_b, rows_b = one_sided
+    U = target.shape[0]
+    cols = jnp.zeros((B, 6, U), dtype).at[owner_a, :, np.arange(U)].add(rows_a)  # J_u'
+    if L:
+        cols = cols.at[owner_b, :, np.arange(U - L, U)].add(rows_b)
+    P = jnp.concatenate([p[..., None], cols], axis=-1)
+    bb = jnp.concatenate([b[..., None], jnp.zeros(b.shape + (U,), dtype)], axis=-1)
+    Vall = _tree_solve(plan, M, P, Jp, Jc, bb, C, model.scan_levels)
+    V0, Y = Vall[..., 0], Vall[..., 1:]  # Y = H^{-1} J_u'  [bodies, 6, U]
+    A = jnp.einsum("uj,ujv->uv", rows_a, Y[owner_a])
+    rhs = target - jnp.einsum("uj,uj->u", rows_a, V0[owner_a])
+    if L:
+        A = A.at[U - L:].add(jnp.einsum("uj,ujv->uv", rows_b, Y[owner_b]))
+        rhs = rhs.at[U - L:].add(-jnp.einsum("uj,uj->u", rows_b, V0[owner_b]))
+    A = 0.5 * (A + A.T) + model.cfm * jnp.eye(U, dtype=dtype)
+    lam = projected_gauss_seidel(A, rhs, model.ground.friction, model.ground.iterations, num_single=L)
+    return _split(V0 + jnp.einsum("bjv,v->bj", Y, lam))
+
+
+def _split(V):
+    return V[:, :3], V[:, 3:]
+
+
+def _step(model: PhysicsModel, state: BodyState, control: Control, h) -> BodyState:
+    """One step with a checked :class:`Control` (every load filled in: :func:`_as_control`)."""
+    force, torque = control.force, control.torque
+    if model.joints.num_joints:
+        torque = _apply_joint_torques(model, torque, control.joint_torque)
+    if model.ground.model == "penalty":
+        f_c, tau_c = penalty_loads(model.ground, model.bodies, state)
+        force, torque = force + f_c, torque + tau_c
+    v, w, I_n = _free_velocities(model.bodies, state, force, torque, h)
+    v, w = _solve_constraints(model, state, v, w, I_n, h, control.spd, control.servo)
+    return _integrate(model.bodies, state, v, w, I_n, h)
+
+
+def _check_state(model: PhysicsModel, state: BodyState) -> None:
+    _check_loads(state, model.bodies.num_bodies, model.bodies.mass.dtype, ())
+
+
+def _control_for(model: PhysicsModel, control=None, **keywords) -> Control:
+    """:func:`_as_control` for ``model``'s sizes and dtype."""
+    return _as_control(model.bodies.num_bodies, model.joints.num_joints, model.bodies.mass.dtype, control, **keywords)
+
+
+@eqx.filter_jit
+def _step_jit(model, state, control, h):
+    return _step(model, state, control, h)
+
+
+def step(
+    model: PhysicsModel,
+    state: BodyState,
+    dt: Float[ArrayLike, ""],
+    control: Control | Mapping | None = None,
+    *,
+    force: Float[ArrayLike, "bodies 3"] | None = None,
+    torque: Float[ArrayLike, "bodies 3"] | None = None,
+    joint_torque: Float[ArrayLike, "joints 3"] | None = None,
+    spd: StablePD | tuple | None = None,
+    servo: Servo | tuple | None = None,
+) -> BodyState:
+    """Advance the articulated bodies by one step of ``dt`` seconds (see :mod:`jaxanim.physics._model`).
+
+    Give the inputs as a :class:`~jaxanim.physics.Control` (``step(model, state, dt, control)``)
+    or as keywords (the 0.1 form); a ``dict`` with the keywords' names is accepted for ``control``.
+
+    Args:
+        model: the :class:`PhysicsModel`.
+        state: the bodies' state.
+        dt: the step, seconds.
+        control: a :class:`~jaxanim.physics.Control` (or a ``dict`` of the keywords below).
+        force: ``[bodies, 3]`` external forces at the centers of mass (world frame, N).
+        torque: ``[bodies, 3]`` external torques (world frame, N m).
+        joint_torque: ``[joints, 3]`` joint torques (world frame, N m): ``+tau`` on the child,
+            ``-tau`` on the parent.
+        spd: optional stable PD on every joint, a :class:`~jaxanim.physics.StablePD` or
+            ``(targets [joints, 4], kp [joints], kd [joints])``: targets are the child's
+            orientations relative to the parent (wxyz, ``q_p^{-1} q_c``), gains in N m / rad and
+            N m s / rad (0 and 0: that joint is not driven). The law ``tau = k_p (e - h w) - k_d w``
+            is implicit in the new relative angular velocity ``w`` and solved with the joint
+            constraints (soft rows, the stable PD of Tan et al. 2011 in maximal coordinates); see
+            :func:`jaxanim.physics.joint_errors` for ``e``.
+        servo: optional stable PD of one body towards a world pose, the root force and torque
+            ("hand of God"): a :class:`~jaxanim.physics.Servo` or ``(body (int), position [3],
+            orientation [4], kp_lin, kd_lin, kp_ang, kd_ang)`` (N/m, N s/m, N m/rad, N m s/rad),
+            implicit like ``spd``.
+
+    Returns:
+        The new :class:`~jaxanim.physics.BodyState`.
+
+    Raises:
+        JaxanimError: shapes do not match the model (the message names the argument and the
+            expected shape), a malformed ``spd`` / ``servo``, or both ``control`` and keywords.
+    """
+    control = _control_for(model, control, force=force, torque=torque, joint_torque=joint_torque, spd=spd,
+                           servo=servo)
+    _check_state(model, state)
+    return _step_jit(model, state, control, jnp.asarray(dt, model.bodies.mass.dtype))
