@@ -24,27 +24,19 @@ def _parser() -> argparse.ArgumentParser:
         epilog=f"registered benchmarks:\n{names}",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all registered)")
-    p.add_argument("--quick", action="store_true", help="batches 1 and 8, 3 repeats, loops capped at 8: a smoke test")
-    p.add_argument("--dtype", choices=("float32", "float64", "both"), default="both", help="default: both")
-    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("BENCHMARKS.md"), help="default: BENCHMARKS.md")
-    p.add_argument(
-        "--batches", type=str, default=None, help="comma-separated batch sizes, overriding every benchmark's"
-    )
-    p.add_argument("--repeats", type=int, default=None, help="timed samples per row (default 7, quick 3)")
-    p.add_argument("--warmup", type=int, default=None, help="untimed calls per row (default 2, quick 1)")
-    p.add_argument(
-        "--loop-cap", type=int, default=None, help="max configurations per timed Python-loop call (default 2048)"
-    )
-    p.add_argument(
-        "--only", type=str, default=None,
-        help="comma-separated shell patterns: run only the implementations whose name matches one, "
-        "case-insensitive (e.g. 'jaxanim*,pinocchio*')",
-    )
-    p.add_argument(
-        "--data-dir", type=pathlib.Path, default=None, help=f"shared data folder (default {default_data_dir()})"
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    arg = p.add_argument
+    arg("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all registered)")
+    arg("--quick", action="store_true", help="batches 1 and 8, 3 repeats, loops capped at 8: a smoke test")
+    arg("--dtype", choices=("float32", "float64", "both"), default="both", help="default: both")
+    arg("--out", type=pathlib.Path, default=pathlib.Path("BENCHMARKS.md"), help="default: BENCHMARKS.md")
+    arg("--batches", type=str, default=None, help="comma-separated batch sizes, overriding every benchmark's")
+    arg("--repeats", type=int, default=None, help="timed samples per row (default 7, quick 3)")
+    arg("--warmup", type=int, default=None, help="untimed calls per row (default 2, quick 1)")
+    arg("--loop-cap", type=int, default=None, help="max configurations per timed Python-loop call (default 2048)")
+    arg("--only", type=str, default=None, help="comma-separated shell patterns: run only the implementations whose "
+        "name matches one, case-insensitive (e.g. 'jaxanim*,pinocchio*')")
+    arg("--data-dir", type=pathlib.Path, default=None, help=f"shared data folder (default {default_data_dir()})")
+    arg("--quiet", action="store_true", help="no progress on stderr")
     return p
 
 
@@ -85,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if config.only:
         settings["implementations"] = "only those matching " + ", ".join(config.only)
     config.log(f"running {args.names or list(REGISTRY)} ({settings['mode']}), report -> {args.out}")
-    tables = run_benchmarks(args.names, config)
+    tables = run_benchmarks(args.names, config, command)
     args.out.write_text(render_report(env, command, settings, tables), encoding="utf-8")
     config.log(f"wrote {args.out}")
     return 0

@@ -18,18 +18,7 @@ class PeerUnavailable(RuntimeError):
 
 
 def require(module: str, install_hint: str | None = None) -> ModuleType:
-    """Import ``module`` or raise :class:`PeerUnavailable`.
-
-    Args:
-        module: the importable name, e.g. ``"pinocchio"``.
-        install_hint: what to install, e.g. ``"pip install pin==4.0.0"``; appended to the reason.
-
-    Returns:
-        The imported module.
-
-    Raises:
-        PeerUnavailable: the import failed (any ``ImportError``, including a broken install).
-    """
+    """Import ``module`` or raise :class:`PeerUnavailable` (any ``ImportError``), with ``install_hint``."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:

@@ -1,19 +1,11 @@
 """MuJoCo (C) and MJX as the peers of the ``physics`` benchmark, on jaxanim's exported MJCF.
 
-The model is :func:`jaxanim.character.export_mjcf` (or :func:`jaxanim.physics.to_mjcf`): one
-MuJoCo body per jaxanim body, its frame at the body's centre of mass (``inertial pos="0 0 0"``), so
-``xpos`` of a body equals jaxanim's ``BodyState.position``; a ``freejoint`` on the root, whose
-``qvel[0:3]`` is the root's centre-of-mass velocity in world axes (the same as jaxanim's
-``linear_velocity``). Three ways to step it:
-
-* :meth:`MujocoSim.step_loop`: a Python loop of ``mujoco.mj_step`` over ``B`` ``MjData`` (one per
-  character), each reset to its initial state first, so every timed call does the same work;
-* :meth:`MujocoSim.rollout`: ``mujoco.rollout.rollout`` (C++ thread pool, ``nthread`` ``MjData``,
-  ``persistent_pool=True``: without it every call builds a pool, ~1 ms), no Python per step;
-* :func:`mjx_rollout`: MJX, ``jax.jit(jax.vmap(scan of mjx.step))``.
-
-Every function imports MuJoCo through :func:`load_mujoco` / :func:`load_mjx`, which raise
-:class:`benchmarks.peers.PeerUnavailable` when they are missing.
+One MuJoCo body per jaxanim body, its frame at the body's center of mass, so ``xpos`` is jaxanim's
+``BodyState.position``; a ``freejoint`` on the root. Three ways to step it: a Python loop of
+``mj_step`` over one ``MjData`` per character, each reset first (:meth:`MujocoSim.step_loop`);
+``mujoco.rollout.rollout`` on a persistent C++ thread pool (:meth:`MujocoSim.rollout`); MJX,
+``jax.jit(jax.vmap(scan of mjx.step))`` (:func:`mjx_rollout`). Missing libraries raise
+:class:`benchmarks.peers.PeerUnavailable`.
 """
 
 from __future__ import annotations
@@ -27,7 +19,7 @@ import numpy as np
 
 from . import PeerUnavailable, require
 
-__all__ = ["MujocoSim", "load_mjx", "load_mujoco", "mjx_rollout", "mjx_version"]
+__all__ = ["MujocoSim", "load_mjx", "load_mujoco", "mjx_rollout"]
 
 _HINT = "pip install mujoco"
 
@@ -49,25 +41,10 @@ def load_mjx():
     return mjx
 
 
-def mjx_version() -> str:
-    import importlib.metadata
-
-    try:
-        return importlib.metadata.version("mujoco-mjx")
-    except importlib.metadata.PackageNotFoundError:
-        return "not installed"
-
-
 class MujocoSim:
-    """A MuJoCo model of a jaxanim model and ``B`` characters' initial states.
-
-    Args:
-        xml: the MJCF text.
-        body_names: jaxanim's body names, in jaxanim's order (positions are returned in it).
-        root: the jaxanim index of the free body.
-        root_velocities: ``[B, 3]`` initial root linear velocities (world, m/s), one per character;
-            everything else starts at the assembly pose, at rest.
-    """
+    """A MuJoCo model (``xml``) of a jaxanim model and ``B`` characters' initial states: the assembly
+    pose at rest but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions
+    are returned in jaxanim's ``body_names`` order."""
 
     def __init__(self, xml: str, body_names: Sequence[str], root: int, root_velocities: np.ndarray):
         mujoco = load_mujoco()
@@ -121,34 +98,22 @@ class MujocoSim:
         state, _ = mj_rollout.rollout(self.model, pool, init, nstep=nstep, persistent_pool=True)
         return state
 
-    def positions_from_state(self, state: np.ndarray) -> np.ndarray:
-        """Body positions (jaxanim order, ``[nb, 3]``) of a full-physics state vector."""
-        d = self.mujoco.MjData(self.model)
-        self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
-        self.mujoco.mj_kinematics(self.model, d)
-        return d.xpos[self.ids].copy()
-
-    def positions(self, i: int = 0) -> np.ndarray:
-        """Character ``i``'s current body positions (jaxanim order, ``[nb, 3]``)."""
-        d = self.datas[i]
-        self.mujoco.mj_kinematics(self.model, d)
-        return d.xpos[self.ids].copy()
-
-    def positions_from_qpos(self, qpos: np.ndarray) -> np.ndarray:
-        """Body positions (jaxanim order) at ``qpos`` (e.g. MJX's result)."""
-        d = self.mujoco.MjData(self.model)
-        d.qpos[:] = qpos
+    def positions(self, i: int = 0, *, state: np.ndarray | None = None, qpos: np.ndarray | None = None) -> np.ndarray:
+        """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, or of a full-physics
+        ``state`` vector, or at ``qpos`` (e.g. MJX's result)."""
+        d = self.datas[i] if state is None and qpos is None else self.mujoco.MjData(self.model)
+        if state is not None:
+            self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
+        if qpos is not None:
+            d.qpos[:] = qpos
         self.mujoco.mj_kinematics(self.model, d)
         return d.xpos[self.ids].copy()
 
 
 def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple]:
-    """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan``
-    per character, vmapped over the first ``batch`` characters' initial states.
-
-    The initial ``mjx.Data`` is cast to the dtypes ``mjx.step`` returns (under x64, ``put_data``
-    makes int32 contact indices that ``step`` returns as int64, which ``lax.scan`` refuses).
-    """
+    """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
+    character over the first ``batch`` characters' initial states (cast to the dtypes ``mjx.step``
+    returns: under x64 ``put_data`` makes int32 contact indices that ``step`` returns as int64)."""
     import jax
     import jax.numpy as jnp
 

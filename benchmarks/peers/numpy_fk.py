@@ -1,12 +1,8 @@
-"""Plain-numpy forward kinematics, vectorised over the batch: the "no JAX at all" baseline.
+"""Plain-numpy forward kinematics, vectorized over the batch: the "no JAX at all" baseline.
 
-One Python iteration per joint; each iteration does one batched ``[B,3,3] @ [B,3,3]`` product for
-the global rotation and one batched matrix-vector product for the position, so the cost is
-``joints`` numpy calls on batch-sized arrays. The forms are the fastest numpy offers for these
-shapes (numpy 2.4, batch 4096): ``np.matmul`` for the 3x3 products (~5x faster than
-``np.einsum("bij,bjk->bik")``) and ``np.einsum("bij,bj->bi")`` for the matrix-vector products
-(~4x faster than ``matmul`` on ``[..., None]``). The dtype of the inputs is kept (float32 stays
-float32). It is also an independent reference: it shares no code with jaxanim.
+One Python iteration per joint, each a batched ``np.matmul`` of ``[B,3,3]`` rotations and an
+``einsum`` matrix-vector product (the fastest numpy forms for these shapes); the inputs' dtype is
+kept. It shares no code with jaxanim, so it is also an independent reference.
 """
 
 from __future__ import annotations
@@ -62,22 +58,9 @@ def forward_kinematics(
     rotations: np.ndarray,
     translations: np.ndarray,
 ) -> NumpyFK:
-    """Global joint transforms of a batch of poses, looping over joints.
-
-    ``R_world_j = R_world_parent @ R_parent_j`` and ``p_world_j = p_world_parent + R_world_parent
-    @ t_parent_j``; the root's parent is the world. An End Site sits at its joint's transform applied
-    to its OFFSET.
-
-    Args:
-        parents: parent index per joint, ``-1`` for the root (joint 0), ``parents[j] < j``.
-        end_site_parents: the joint each End Site hangs from.
-        end_site_offsets: ``[end_sites, 3]`` End Site OFFSETs in their joint's frame.
-        rotations: ``[B, joints, 3, 3]`` local rotations ``R_parent_joint``.
-        translations: ``[B, joints, 3]`` local translations ``t_parent_joint`` (file units).
-
-    Returns:
-        :class:`NumpyFK` with arrays in the dtype of ``rotations``.
-    """
+    """``R_world_j = R_world_parent @ R_parent_j``, ``p_world_j = p_world_parent + R_world_parent @ t_parent_j``
+    and End Sites at their joint's transform of their OFFSET, for ``rotations [B, joints, 3, 3]`` and
+    ``translations [B, joints, 3]`` (``parents[j] < j``, root first)."""
     b, nj = rotations.shape[:2]
     dtype = rotations.dtype
     R = np.empty((b, nj, 3, 3), dtype=dtype)
