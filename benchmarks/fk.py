@@ -23,7 +23,7 @@ import numpy as np
 from .peers import PeerUnavailable
 from .peers import numpy_fk as numpy_peer
 from .report import Row, Table, Target, sel
-from .timing import Runner, time_call
+from .timing import Runner
 
 __all__ = ["CLIP", "FK_BATCHES", "JACOBIAN_BATCHES", "JACOBIAN_SITES", "NaiveFK", "Problem", "autodiff_jacobian",
            "load_problem", "naive_fk", "perturbed_sites", "run_fk", "run_jacobian"]
@@ -225,10 +225,9 @@ def _pinocchio(config, skeleton, impl: str, table: Table):
 
 def _loop_row(run: Runner, impl: str, fn: Callable, args: tuple, b: int, n: int, accuracy: float, note: str,
               dtype: str = "float64") -> Row:
-    c = run.config
-    st = time_call(fn, *args, repeats=c.repeats, warmup=c.warmup, max_total_s=c.max_row_s)
-    note += f"; timed on {n} of {b} configurations" if n < b else ""
-    return Row(impl, dtype, b, st.median, st.min, n, None, accuracy, samples=st.repeats, note=note)
+    _, tm = run.python(fn, *args)
+    return run.row(impl, dtype, b, tm, n, accuracy=accuracy,
+                   note=note + (f"; timed on {n} of {b} configurations" if n < b else ""))
 
 
 def _bench(config, name: str, title: str, description: str, label: str, batches: Sequence[int],

@@ -16,13 +16,8 @@ __all__ = ["NumpyFK", "forward_kinematics", "quat_to_matrix"]
 
 
 class NumpyFK(NamedTuple):
-    """Batched FK result.
-
-    Attributes:
-        rotations: ``[B, joints, 3, 3]`` global rotations ``R_world_joint``.
-        positions: ``[B, joints, 3]`` global joint positions.
-        end_site_positions: ``[B, end_sites, 3]`` global End Site positions.
-    """
+    """Batched FK: ``rotations [B, joints, 3, 3]`` (``R_world_joint``), ``positions [B, joints, 3]`` and
+    ``end_site_positions [B, end_sites, 3]`` (world)."""
 
     rotations: np.ndarray
     positions: np.ndarray
@@ -30,14 +25,8 @@ class NumpyFK(NamedTuple):
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of wxyz quaternions (normalised first).
-
-    Args:
-        q: ``[..., 4]`` quaternions, scalar first (w, x, y, z).
-
-    Returns:
-        ``[..., 3, 3]`` rotation matrices acting on column vectors, in the dtype of ``q``.
-    """
+    """Rotation matrices ``[..., 3, 3]`` (acting on column vectors, ``q``'s dtype) of wxyz quaternions
+    ``[..., 4]``, normalized first."""
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
     m = np.stack(
