@@ -1,16 +1,11 @@
 """Benchmarks of jaxanim against its peers: ``python -m benchmarks [NAME ...] [--quick]``.
 
-Each benchmark is a function ``run(config: BenchConfig) -> list[Table]`` (:mod:`benchmarks.report`:
-rows are data, one template renders them); :data:`REGISTRY` maps the command-line names to those
-functions, imported lazily so that one benchmark's missing dependency never stops another. Peers
-live in ``benchmarks/peers/`` and raise :class:`benchmarks.peers.PeerUnavailable` when they cannot
-be imported; the benchmark then reports them as ``skipped: <reason>`` rows.
-"""
+:data:`REGISTRY` maps the command-line names to ``run(config: BenchConfig) -> list[Table]`` functions, imported
+lazily so that one benchmark's missing dependency never stops another; missing peers are ``skipped`` rows."""
 
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import fnmatch
 import importlib
 import os
@@ -19,7 +14,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 
-from .report import Row as Row, Table as Table
+from .report import Row as Row, Table as Table, utc_now
 
 __all__ = ["REGISTRY", "BenchConfig", "BenchmarkSpec", "Row", "Table", "default_data_dir", "run_benchmarks"]
 
@@ -63,6 +58,16 @@ class BenchConfig:
     def selects(self, implementation: str) -> bool:
         """Whether ``implementation`` passes the ``only`` filter."""
         return not self.only or any(fnmatch.fnmatchcase(implementation.lower(), p.lower()) for p in self.only)
+
+    def data_file(self, name: str) -> pathlib.Path | str:
+        """The shared data file ``name``, or why it is missing."""
+        path = pathlib.Path(self.data_dir) / name
+        return path if path.is_file() else (f"{path} not found (the shared data sits beside the clone; set "
+                                            "JAXANIM_SHARED_DATA or --data-dir)")
+
+    def float64_only(self, name: str, why: str) -> None:
+        if "float64" not in self.dtypes:
+            self.log(f"{name}: runs in float64 only ({why}); --dtype is ignored")
 
     def log(self, msg: str) -> None:
         """Print a progress line to stderr (when ``verbose``)."""
@@ -112,9 +117,8 @@ def run_benchmarks(names: Sequence[str], config: BenchConfig, command: str = "py
         config.log(f"== {n}: {REGISTRY[n].description}")
         load0, start = _load(), time.perf_counter()
         new = REGISTRY[n].load()(config)
-        date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         run = (f"*Measured by `{command}` (benchmark `{n}`, {'quick' if config.quick else 'full'} mode), finished "
-               f"{date}, in {time.perf_counter() - start:.0f} s; 1-minute load average {load0} at its start and "
+               f"{utc_now()}, in {time.perf_counter() - start:.0f} s; 1-minute load average {load0} at its start and "
                f"{_load()} at its end on {os.cpu_count()} logical cores (above the core count, other processes "
                "shared the CPU and inflated every time).*")
         for t in new:

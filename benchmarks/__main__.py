@@ -1,9 +1,6 @@
-"""Command line: ``python -m benchmarks [NAME ...] [--quick] [--dtype ...] [--out BENCHMARKS.md]``.
-
-Runs the named benchmarks (default: all registered) in this process and writes the markdown report.
-Progress goes to stderr. float64 needs x64, which is switched on before anything else touches JAX;
-every benchmark gives its arrays explicit dtypes, so float32 rows stay float32.
-"""
+"""Command line: ``python -m benchmarks [NAME ...] [--quick] [--dtype ...] [--out BENCHMARKS.md]``: runs the
+benchmarks in this process and writes the report (progress on stderr). x64 is switched on before anything
+else touches JAX; every benchmark gives its arrays explicit dtypes, so float32 rows stay float32."""
 
 from __future__ import annotations
 

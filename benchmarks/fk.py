@@ -1,17 +1,10 @@
-"""Forward-kinematics and Jacobian benchmarks on the 31-joint CMU skeleton (``fk``, ``jacobian``).
-
-Poses: character ``b`` of a batch takes clip frame ``b mod 300`` of ``bvh/cmu_01_01_trim300.bvh``
-and right-multiplies every local rotation by ``Rx(a) Ry(b) Rz(c)``, ``a, b, c`` uniform in ±45°
-(seed 0); a batch of size ``B`` is the first ``B`` characters of the largest batch. Implementations:
-jaxanim (quaternion and matrix input), a naive JAX loop FK (:func:`naive_fk`), numpy
-(:mod:`benchmarks.peers.numpy_fk`), Pinocchio (Python loop, float64); for the Jacobian also
-``jax.jacfwd`` / ``jax.jacrev`` of FK after a perturbation (:func:`autodiff_jacobian`).
-float64 runs first: its reference rows are reused as every row's reference.
-"""
+"""Forward-kinematics and Jacobian benchmarks on the 31-joint CMU skeleton (``fk``, ``jacobian``); the
+problems and implementations are described by the tables. float64 runs first: its reference rows are reused."""
 
 from __future__ import annotations
 
 import functools
+import importlib
 import pathlib
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
@@ -59,10 +52,6 @@ def _cast(tree, dtype):
     return jax.tree.map(lambda x: jnp.asarray(x, dtype=dtype) if floating(x) else x, tree)
 
 
-def _missing(path: pathlib.Path) -> str:
-    return f"{path} not found (the shared data sits beside the clone; set JAXANIM_SHARED_DATA or --data-dir)"
-
-
 class Problem:
     """The CMU skeleton (float64) and ``max_batch`` poses: ``quats [B, J, 4]`` wxyz, ``mats [B, J, 3, 3]``,
     ``trans [B, J, 3]`` (float64 numpy), and the clip as read (``motion``)."""
@@ -91,8 +80,8 @@ class Problem:
 
 def load_problem(config, max_batch: int) -> Problem | str:
     """The benchmark problem, or the reason it cannot be built (the BVH file is missing)."""
-    path = pathlib.Path(config.data_dir) / CLIP
-    return Problem(path, max_batch) if path.is_file() else _missing(path)
+    path = config.data_file(CLIP)
+    return Problem(path, max_batch) if isinstance(path, pathlib.Path) else path
 
 
 # --- baselines written here -------------------------------------------------------------------------
@@ -210,16 +199,15 @@ def _jax_row(run: Runner, impl: str, fn: Callable, args: tuple, dtype: str, b: i
     return run.row(impl, dtype, b, tm, compile_s=comp, accuracy=accuracy(out), note=note)
 
 
-def _pinocchio(config, skeleton, impl: str, table: Table):
-    """The Pinocchio adapter and model, or ``(None, None)`` with a skipped row added."""
-    if not config.selects(impl):
+def pinocchio(run: Runner, skeleton, impl: str, module: str = "pinocchio_peer"):
+    """The Pinocchio adapter ``module`` and its model, or ``(None, None)`` with a skipped row added."""
+    if not run.config.selects(impl):
         return None, None
     try:
-        from .peers import pinocchio_peer
-
-        return pinocchio_peer, pinocchio_peer.build_model(skeleton)
+        mod = importlib.import_module(f"benchmarks.peers.{module}")
+        return mod, mod.build_model(skeleton)
     except PeerUnavailable as exc:
-        table.rows.append(Row(impl, skipped=str(exc), is_peer=True))
+        run.table.rows.append(Row(impl, skipped=str(exc), is_peer=True))
         return None, None
 
 
@@ -228,6 +216,12 @@ def _loop_row(run: Runner, impl: str, fn: Callable, args: tuple, b: int, n: int,
     _, tm = run.python(fn, *args)
     return run.row(impl, dtype, b, tm, n, accuracy=accuracy,
                    note=note + (f"; timed on {n} of {b} configurations" if n < b else ""))
+
+
+def _pin_inputs(run: Runner, pin_mod, problem: Problem, b: int) -> tuple[int, list, int]:
+    """``(n, configurations, k)``: the ``n`` timed configurations of batch ``b``, the first ``k`` checked."""
+    n = min(b, run.config.loop_cap)
+    return n, list(pin_mod.configurations(problem.quats[:n], problem.trans[:n, 0])), min(n, _ACCURACY_SAMPLES)
 
 
 def _bench(config, name: str, title: str, description: str, label: str, batches: Sequence[int],
@@ -268,7 +262,7 @@ def run_fk(config) -> list[Table]:
             *problem.jax_inputs(jnp.float64, max(batches)))))
         err = lambda out, b: _max_err(zip(_outputs(out), ref.get(b)))  # noqa: E731
         run.table.notes.extend(_fk_validation_notes(run.config, problem))
-        pin_mod, pin = _pinocchio(run.config, skel64, _PIN_FK, run.table)
+        pin_mod, pin = pinocchio(run, skel64, _PIN_FK)
         for dtype in dtypes:
             skel = _cast(problem.skeleton, dtype)
             naive = jax.vmap(functools.partial(naive_fk, parents, esp, jnp.asarray(eso64, dtype=dtype)))
@@ -290,9 +284,7 @@ def run_fk(config) -> list[Table]:
                     run, "numpy", numpy_peer.forward_kinematics, np_args, b, b, e(numpy_peer.forward_kinematics(
                         *np_args)), "vectorized over the batch, loop over joints, [B,31,3,3]", dtype), peer=True)
                 if pin is not None and dtype == dtypes[0]:
-                    n = min(b, run.config.loop_cap)
-                    qs = list(pin_mod.configurations(problem.quats[:n], problem.trans[:n, 0]))
-                    k = min(n, _ACCURACY_SAMPLES)
+                    n, qs, k = _pin_inputs(run, pin_mod, problem, b)
                     run.add(_PIN_FK, "float64", b, lambda: _loop_row(
                         run, _PIN_FK, pin_mod.fk_loop, (pin, qs), b, n,
                         _max_err(zip(pin_mod.positions(pin, qs[:k]), (a[:k] for a in ref.get(b)))),
@@ -363,7 +355,7 @@ def run_jacobian(config) -> list[Table]:
         skel64 = problem.skeleton
         ref = _Reference(lambda: (jax.jit(jax.vmap(lambda q, t: autodiff_jacobian(skel64, q, t, sites)))(
             *problem.jax_inputs(jnp.float64, max(batches))),))
-        pin_mod, pin = _pinocchio(run.config, skel64, _PIN_JAC, run.table)
+        pin_mod, pin = pinocchio(run, skel64, _PIN_JAC)
         for dtype in dtypes:
             skel = _cast(problem.skeleton, dtype)
             for b in batches:
@@ -375,10 +367,8 @@ def run_jacobian(config) -> list[Table]:
                            (lambda out, b=b: _max_err([(out, ref.get(b)[0])])))
                     run.add(impl, dtype, b, lambda: _jax_row(run, impl, fn, args, dtype, b, acc, note), peer=peer)
                 if pin is not None and dtype == dtypes[0]:
-                    n = min(b, run.config.loop_cap)
-                    qs = list(pin_mod.configurations(problem.quats[:n], problem.trans[:n, 0]))
+                    n, qs, k = _pin_inputs(run, pin_mod, problem, b)
                     fids = [pin.frame_ids[s] for s in sites]
-                    k = min(n, _ACCURACY_SAMPLES)
                     conv = lambda: pin_mod.to_parent_frame_columns(  # noqa: E731
                         pin_mod.frame_jacobians(pin, qs[:k], fids), problem.mats[:k])
                     run.add(_PIN_JAC, "float64", b, lambda: _loop_row(

@@ -1,14 +1,5 @@
-"""Inverse-kinematics benchmark on the 31-joint CMU skeleton (``python -m benchmarks ik``).
-
-Each problem (:func:`draw_problems`) is a random pose: every local rotation is the rest rotation
-times ``Rz(a) Ry(b) Rx(c)``, ``a, b, c`` uniform in ±45°, except the root's, uniformly random, and
-the root translation is the rest one plus N(0, 5²) per axis (seed 0). Its targets are the world
-positions and orientations of :data:`EFFECTORS` from an independent float64 numpy FK, so every
-target set is reachable; every solve starts from the rest pose. Success (:func:`evaluate`) comes
-from the returned poses only, never from the solvers' flags. Rows: ``jax.jit(jax.vmap(solve))``
-for jaxanim LM (adaptive and fixed steps), optimistix LM / GN and jaxopt LM behind :mod:`solvers`'
-adapters, CCD and the Jacobian transpose; Pinocchio CLIK in a Python loop (float64).
-"""
+"""Inverse-kinematics benchmark on the 31-joint CMU skeleton (``python -m benchmarks ik``): random reachable
+targets (:func:`draw_problems`), success judged from the returned poses only (:func:`evaluate`)."""
 
 from __future__ import annotations
 
@@ -23,8 +14,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .fk import CLIP, _axis_quat_np, _cast, _missing, _quat_mul_np
-from .peers import PeerUnavailable, require
+import solvers
+
+from .fk import CLIP, _axis_quat_np, _cast, _quat_mul_np, pinocchio
+from .peers import require
 from .peers import numpy_fk as numpy_peer
 from .report import Row, Table, Target, sel
 from .timing import Runner, status_counts
@@ -74,37 +67,32 @@ def _rotation_angle_np(R: np.ndarray) -> np.ndarray:
     return np.arctan2(s, 0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1))
 
 
+def _np_fk(skeleton, R: np.ndarray, t: np.ndarray):
+    """Float64 numpy FK of ``[B, J, 3, 3]`` / ``[B, J, 3]`` poses: ``(R_world [B, J, 3, 3], p_all [B, sites, 3])``."""
+    out = numpy_peer.forward_kinematics(skeleton.parents, skeleton.end_site_parents,
+                                        np.asarray(skeleton.end_site_offsets, dtype=np.float64), R, t)
+    return out.rotations, np.concatenate([out.positions, out.end_site_positions], axis=1)
+
+
 def _fk_sites(skeleton, quats: np.ndarray, trans: np.ndarray, sites: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     """Float64 numpy FK of ``[B, J, 4]`` wxyz / ``[B, J, 3]`` poses: site positions and rotations."""
-    out = numpy_peer.forward_kinematics(
-        skeleton.parents, skeleton.end_site_parents, np.asarray(skeleton.end_site_offsets, dtype=np.float64),
-        numpy_peer.quat_to_matrix(np.asarray(quats, dtype=np.float64)), np.asarray(trans, dtype=np.float64))
-    p_all = np.concatenate([out.positions, out.end_site_positions], axis=1)
-    J = skeleton.num_joints
-    idx = [skeleton.site_index(s) for s in sites]
-    owner = [i if i < J else skeleton.end_site_parents[i - J] for i in idx]
-    return p_all[:, idx], out.rotations[:, owner]
+    R, p_all = _np_fk(skeleton, numpy_peer.quat_to_matrix(np.asarray(quats, dtype=np.float64)),
+                      np.asarray(trans, dtype=np.float64))
+    J, idx = skeleton.num_joints, [skeleton.site_index(s) for s in sites]
+    return p_all[:, idx], R[:, [i if i < J else skeleton.end_site_parents[i - J] for i in idx]]
 
 
 def skeleton_height(skeleton) -> float:
     """The vertical (y) extent of the rest pose's joints and End Sites, file units."""
-    J = skeleton.num_joints
-    out = numpy_peer.forward_kinematics(
-        skeleton.parents, skeleton.end_site_parents, np.asarray(skeleton.end_site_offsets, dtype=np.float64),
-        np.broadcast_to(np.eye(3), (1, J, 3, 3)), np.asarray(skeleton.offsets, dtype=np.float64)[None])
-    y = np.concatenate([out.positions[0, :, 1], out.end_site_positions[0, :, 1]])
+    y = _np_fk(skeleton, np.broadcast_to(np.eye(3), (1, skeleton.num_joints, 3, 3)),
+               np.asarray(skeleton.offsets, dtype=np.float64)[None])[1][0, :, 1]
     return float(y.max() - y.min())
 
 
 @dataclasses.dataclass(frozen=True)
 class ProblemSet:
-    """A batch of IK problems as float64 numpy arrays.
-
-    Attributes: ``goal_rotations [B, J, 4]`` / ``goal_translations [B, J, 3]`` (the poses the targets
-    come from), ``positions [B, sites, 3]``, ``orientations [B, sites, 4]`` (wxyz) and
-    ``rotation_matrices [B, sites, 3, 3]`` (world targets), the rest pose every solve starts from
-    (``start_rotations [J, 4]``, ``start_translations [J, 3]``) and the skeleton's ``height``.
-    """
+    """A batch of IK problems (float64 numpy): the goal poses, their world targets ``positions [B, sites, 3]``,
+    ``orientations [B, sites, 4]`` (wxyz) and ``rotation_matrices``, the rest pose every solve starts from."""
 
     skeleton: Any
     sites: tuple[str, ...]
@@ -216,47 +204,34 @@ def load_skeleton(config):
     """The CMU skeleton (float64), or the reason it cannot be loaded."""
     from jaxanim import read_bvh
 
-    path = pathlib.Path(config.data_dir) / CLIP
-    return _cast(read_bvh(str(path))[0], jnp.float64) if path.is_file() else _missing(path)
+    path = config.data_file(CLIP)
+    return _cast(read_bvh(str(path))[0], jnp.float64) if isinstance(path, pathlib.Path) else path
 
 
 # --- implementations ------------------------------------------------------------------------------------
-def _tolerances(dtype) -> tuple[float, float]:
-    """``(rtol, atol)`` of the adaptive solvers: the library defaults in float64, looser in float32."""
-    return (1e-8, 1e-10) if jnp.dtype(dtype) == jnp.float64 else (1e-5, 1e-7)
+def _tol(dtype) -> dict:
+    """``rtol, atol`` of the adaptive solvers: the library defaults in float64, looser in float32."""
+    return dict(rtol=1e-8, atol=1e-10) if jnp.dtype(dtype) == jnp.float64 else dict(rtol=1e-5, atol=1e-7)
 
 
-def _ik_kwargs(solver) -> dict:
+def _ik(solver) -> dict:
     from jaxanim.ik import solve_ik
 
     return dict(solve=solve_ik, solver=solver, regularization=REGULARIZATION)
 
 
-def _lm(dtype, fixed: bool) -> dict:
-    import solvers
-
-    rtol, atol = _tolerances(dtype)
-    return _ik_kwargs(solvers.LevenbergMarquardt(rtol=rtol, atol=atol, max_steps=FIXED_STEPS if fixed else MAX_STEPS,
-                                                 fixed_steps=fixed))
-
-
 def _optx(dtype, name: str) -> dict:
     import optimistix as optx
 
-    import solvers
-
-    rtol, atol = _tolerances(dtype)
-    return _ik_kwargs(solvers.OptimistixSolver(getattr(optx, name)(rtol=rtol, atol=atol), max_steps=MAX_STEPS))
+    return _ik(solvers.OptimistixSolver(getattr(optx, name)(**_tol(dtype)), max_steps=MAX_STEPS))
 
 
 def _jaxopt(dtype) -> dict:
-    import solvers
-
     with warnings.catch_warnings():  # jaxopt announces on import that it is unmaintained
         warnings.simplefilter("ignore")
         require("jaxopt", "pip install 'jaxanim[jaxopt]'")
     atol = 1e-8 if jnp.dtype(dtype) == jnp.float64 else 1e-3  # |J^T r|_2
-    return _ik_kwargs(solvers.JaxoptSolver("LevenbergMarquardt", atol=atol, max_steps=MAX_STEPS))
+    return _ik(solvers.JaxoptSolver("LevenbergMarquardt", atol=atol, max_steps=MAX_STEPS))
 
 
 def _ccd(dtype, problems: ProblemSet) -> dict:
@@ -266,26 +241,20 @@ def _ccd(dtype, problems: ProblemSet) -> dict:
                 position_tolerance=0.5 * problems.position_tolerance, orientation_tolerance=0.5 * ORIENTATION_TOLERANCE)
 
 
-def _jt(dtype) -> dict:
-    import solvers
-
-    rtol, atol = _tolerances(dtype)
-    return _ik_kwargs(solvers.GradientDescent(rtol=rtol, atol=atol, max_steps=JT_MAX_STEPS, fixed_steps=False,
-                                              max_backtracks=8))
-
-
 _LM_ADAPTIVE = "jaxanim LM (adaptive)"
 _LM_FIXED = f"jaxanim LM (fixed {FIXED_STEPS})"
 _CCD = "jaxanim CCD"
 _JT = "jaxanim Jacobian transpose"
 _PIN = "Pinocchio CLIK"
-_TOL = "rtol/atol {:g}/{:g} (f64), {:g}/{:g} (f32)".format(*_tolerances(jnp.float64), *_tolerances(jnp.float32))
+_TOL = "rtol/atol {rtol:g}/{atol:g} (f64), ".format(**_tol(jnp.float64)) + "{rtol:g}/{atol:g} (f32)".format(
+    **_tol(jnp.float32))
 # (name, make(dtype, problems) -> kwargs of batched_solver, note, is_peer, max_batch)
 _METHODS = (
-    (_LM_ADAPTIVE, lambda d, p: _lm(d, False), f"solvers.LevenbergMarquardt, while_loop, ≤ {MAX_STEPS} iterations, "
-     f"{_TOL}", False, None),
-    (_LM_FIXED, lambda d, p: _lm(d, True), f"solvers.LevenbergMarquardt(fixed_steps=True): lax.scan of {FIXED_STEPS} "
-     "iterations (iterations = steps until converged; finished problems are frozen)", False, None),
+    (_LM_ADAPTIVE, lambda d, p: _ik(solvers.LevenbergMarquardt(**_tol(d), max_steps=MAX_STEPS, fixed_steps=False)),
+     f"solvers.LevenbergMarquardt, while_loop, ≤ {MAX_STEPS} iterations, {_TOL}", False, None),
+    (_LM_FIXED, lambda d, p: _ik(solvers.LevenbergMarquardt(**_tol(d), max_steps=FIXED_STEPS, fixed_steps=True)),
+     f"solvers.LevenbergMarquardt(fixed_steps=True): lax.scan of {FIXED_STEPS} iterations (iterations = steps "
+     "until converged; finished problems are frozen)", False, None),
     ("optimistix LM", lambda d, p: _optx(d, "LevenbergMarquardt"),
      f"OptimistixSolver(optx.LevenbergMarquardt), ≤ {MAX_STEPS} steps, {_TOL}", True, _SLOW_MAX_BATCH),
     ("optimistix GN", lambda d, p: _optx(d, "GaussNewton"),
@@ -294,8 +263,10 @@ _METHODS = (
      f"1e-3 (f32), ≤ {MAX_STEPS} steps", True, _SLOW_MAX_BATCH),
     (_CCD, _ccd, f"jaxanim.ik.solve_ik_ccd, while_loop, ≤ {CCD_MAX_SWEEPS} sweeps, stops at half the success "
      "thresholds; iterations = sweeps", False, _SLOW_MAX_BATCH),
-    (_JT, lambda d, p: _jt(d), f"solvers.GradientDescent (Buss step + Armijo backtracking), ≤ {JT_MAX_STEPS} "
-     f"iterations, {_TOL}", False, _SLOW_MAX_BATCH),
+    (_JT, lambda d, p: _ik(solvers.GradientDescent(**_tol(d), max_steps=JT_MAX_STEPS, fixed_steps=False,
+                                                   max_backtracks=8)),
+     f"solvers.GradientDescent (Buss step + Armijo backtracking), ≤ {JT_MAX_STEPS} iterations, {_TOL}", False,
+     _SLOW_MAX_BATCH),
 )
 
 
@@ -391,14 +362,7 @@ def run_ik(config) -> list[Table]:
         "percentile over problems of each problem's worst position error (units) / orientation error (rad). "
         "Iterations (solver steps; CCD sweeps; CLIK updates) are in the notes column.")
     run = Runner(config, table)
-    pin_mod = pin = None
-    if config.selects(_PIN):
-        try:
-            from .peers import pinocchio_clik as pin_mod
-
-            pin = pin_mod.build_model(skel)
-        except PeerUnavailable as exc:
-            table.rows.append(Row(_PIN, skipped=str(exc), is_peer=True))
+    pin_mod, pin = pinocchio(run, skel, _PIN, "pinocchio_clik")
     dtypes = sorted(config.dtypes, key=lambda d: d != "float64")
     for dtype in dtypes:
         for b in batches:

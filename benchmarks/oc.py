@@ -1,13 +1,5 @@
-"""Optimal-control benchmark (``python -m benchmarks oc``): iLQR / DDP / LQR / DARE vs Crocoddyl and scipy.
-
-Tables, all float64 (Crocoddyl and scipy are float64 only): the unicycle (``T = 200``, exactly
-Crocoddyl's ``ActionModelUnicycle``, unbounded and box-constrained); a seeded LQ problem
-(:func:`make_lq`) against Crocoddyl's ``ActionModelLQR``; batched DARE (:func:`make_dare_systems`)
-against a scipy loop; batched pendulum and cart-pole swing-ups (:func:`initial_states`) against a
-Python loop of Crocoddyl on Python action models with the same dynamics and cost
-(:mod:`benchmarks.peers.crocoddyl_oc`; Crocoddyl's DDP gets first derivatives of the dynamics
-only, as iLQR does); and the compile times of every jaxanim row.
-"""
+"""Optimal-control benchmark (``python -m benchmarks oc``): iLQR / DDP / LQR / DARE vs Crocoddyl and scipy,
+float64 only; each table's description says what is compared."""
 
 from __future__ import annotations
 
@@ -486,8 +478,7 @@ def run_oc(config, sizes: OCSizes | None = None, tables: Sequence[str] = TABLES)
     if unknown:
         raise ValueError(f"tables: unknown {sorted(unknown)}; expected some of {TABLES}")
     sz = sizes or OCSizes()
-    if "float64" not in config.dtypes:
-        config.log("oc: runs in float64 only (Crocoddyl and scipy are float64); --dtype is ignored")
+    config.float64_only("oc", "Crocoddyl and scipy are float64")
     out = [make(config, sz) for key, make in (("unicycle", _unicycle_table), ("lqr", _lqr_table),
                                               ("dare", _dare_table)) if key in tables]
     if "swing_up" in tables:

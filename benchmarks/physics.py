@@ -1,14 +1,5 @@
-"""Physics benchmark (``python -m benchmarks physics``): a ~20-body character standing under PD control.
-
-The CMU skeleton of ``bvh/cmu_01_01_trim300.bvh`` built with :func:`jaxanim.character.build_character`
-at clip frame :data:`STAND_FRAME` (both feet flat), lowered onto the ground plane, every joint held
-by stable PD (``kp`` = :data:`KP`, ``kd`` = :data:`KD`); MuJoCo runs
-:func:`jaxanim.character.export_mjcf` of it (joint springs of the same stiffness and damping,
-Euler, the same ``dt``, friction 0.8). Character ``b`` starts with a seeded root velocity
-(:func:`root_velocities`). Tables: step throughput (``physics``), standing accuracy over a second
-(``physics-standing``) and a double pendulum against MuJoCo at a tiny step (``physics-pendulum``).
-Runs in float64 only (MuJoCo is float64).
-"""
+"""Physics benchmark (``python -m benchmarks physics``): a ~20-body character standing under PD control
+against MuJoCo C and MJX (throughput, standing accuracy), and a double pendulum; float64 only."""
 
 from __future__ import annotations
 
@@ -23,9 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .fk import _missing
 from .peers import PeerUnavailable
-from .report import Row, Table, Target, sel
+from .report import Row, Table, Target, sel, usable_cores
 from .timing import Runner, Timing, status_counts
 
 __all__ = ["BATCHES", "CLIP", "DT", "KD", "KP", "PhysicsSizes", "STAND_FRAME", "StandingCharacter", "double_pendulum",
@@ -190,7 +180,7 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
 
     batches = config.batches_for(sz.batches)
     mjx_batches = batches if sz.mjx_batches is None else tuple(sz.mjx_batches)
-    n, nthread = sz.steps_per_call, mp.cpu_threads()
+    n, nthread = sz.steps_per_call, usable_cores()
     ch0 = standing_character(config.data_dir, "complementarity")
     table = Table(
         "physics", f"Physics: a {ch0.char.num_bodies}-body character standing under PD control (character-steps per "
@@ -409,14 +399,13 @@ def run_physics(config, sizes: PhysicsSizes | None = None, tables: tuple[str, ..
     if unknown:
         raise ValueError(f"tables: unknown {sorted(unknown)}; expected some of {TABLES}")
     sz = sizes or (PhysicsSizes.quick(config.batches_for(BATCHES)) if config.quick else PhysicsSizes())
-    if "float64" not in config.dtypes:
-        config.log("physics: runs in float64 only (MuJoCo is float64); --dtype is ignored")
+    config.float64_only("physics", "MuJoCo is float64")
     out: list[Table] = []
-    path = pathlib.Path(config.data_dir) / CLIP
+    path = config.data_file(CLIP)
     for name, make, title in (("throughput", _throughput_table, "physics"),
                               ("standing", _standing_table, "physics-standing")):
-        if name in tables and not path.is_file():
-            out.append(Table(title, f"Physics: {name}", skipped=_missing(path)))
+        if name in tables and isinstance(path, str):
+            out.append(Table(title, f"Physics: {name}", skipped=path))
         elif name in tables and (name != "standing" or sz.stand_seconds > 0):
             out.append(make(config, sz))
     if "pendulum" in tables and sz.pendulum_seconds > 0:

@@ -1,11 +1,6 @@
-"""Rows as data, and the one template that turns a table of rows into a section of BENCHMARKS.md.
-
-A benchmark measures :class:`Row` s (problem x implementation x dtype x batch) into a :class:`Table`
-that also declares the problem's description and its :class:`Target` s. :func:`render_table` is the
-only place that writes prose: the table, the "× best peer" column and line (the fastest *peer* row,
-anything not jaxanim, at the same batch), each target met / missed with the rows it was judged on,
-the benchmark's measured facts, and the line saying how, when and under what load it was measured.
-"""
+"""Rows as data (:class:`Row`, :class:`Table`, :class:`Target`) and the one template, :func:`render_table`, the
+only place that writes prose: the table, the "× best peer" column and line, each target met / missed with the
+rows it was judged on, the benchmark's measured facts and how it was measured."""
 
 from __future__ import annotations
 
@@ -24,14 +19,11 @@ _DASH = "—"
 
 @dataclasses.dataclass
 class Row:
-    """What one implementation of a problem measured at one dtype and batch size.
-
-    Times are seconds per timed call; ``chars_per_call`` is the problems (or character-steps) one
-    call processes (``batch`` unless a Python loop was capped); ``compile_s`` is ``lower + compile``;
-    ``accuracy`` a number, ``"reference"`` or a formatted pair; ``success`` the fraction solved;
-    ``status`` the counts of solver statuses other than success; ``samples`` the timed calls;
-    ``skipped`` why the row did not run; ``extra`` measured values later rows need (not rendered).
-    """
+    """What one implementation of a problem measured at one dtype and batch size: seconds per timed call,
+    ``chars_per_call`` problems (or character-steps) per call (``batch`` unless a Python loop was capped),
+    ``compile_s`` (``lower + compile``), ``accuracy`` (a number or text), ``success`` (fraction solved),
+    ``status`` (counts of statuses other than success), ``samples`` (timed calls), why it was ``skipped``,
+    and ``extra`` measured values that later rows need (not rendered)."""
 
     implementation: str
     dtype: str | None = None
@@ -49,19 +41,12 @@ class Row:
     skipped: str | None = None
     extra: dict[str, Any] = dataclasses.field(default_factory=dict, repr=False)
 
-    @property
-    def us_per_char(self) -> float | None:
-        """Median microseconds per problem (per character-step, per configuration of a capped loop)."""
-        t = self.time_median_s
+    def _per_char(self, t: float | None) -> float | None:  # µs per problem (character-step, capped configuration)
         return None if t is None else t / (self.chars_per_call or self.batch or 1) * 1e6
 
-    @property
-    def min_us_per_char(self) -> float | None:
-        return None if self.time_min_s is None else self.time_min_s / (self.chars_per_call or self.batch or 1) * 1e6
-
-    @property
-    def measured(self) -> bool:
-        return self.skipped is None
+    us_per_char = property(lambda self: self._per_char(self.time_median_s))
+    min_us_per_char = property(lambda self: self._per_char(self.time_min_s))
+    measured = property(lambda self: self.skipped is None)
 
 
 def sel(prefix: str | tuple[str, ...] = "", dtype: str | None = None, batch: int | None = None,
@@ -74,12 +59,9 @@ def sel(prefix: str | tuple[str, ...] = "", dtype: str | None = None, batch: int
 
 @dataclasses.dataclass(frozen=True)
 class Target:
-    """A goal judged on the rows: the best (or ``worst``) selected row's ``metric`` against ``limit``.
-
-    ``metric``: ``"us"`` (median µs per problem), ``"min_us"``, ``"compile"`` (s) or ``"success"``
-    (higher is better; the others lower). With ``versus`` the value is a speedup, the fastest
-    ``versus`` row's metric over the selected row's, and it must be at least ``limit``.
-    """
+    """A goal judged on the rows: the best (or ``worst``) selected row's ``metric`` (``"us"``: median µs per
+    problem, ``"min_us"``, ``"compile"`` s, or ``"success"``, higher is better) against ``limit``; with
+    ``versus``, the speedup of the selected row over the fastest ``versus`` row must be at least ``limit``."""
 
     text: str
     select: Callable[[Row], bool]
@@ -106,6 +88,10 @@ class Table:
 
 
 # --- formatting -----------------------------------------------------------------------------------
+def utc_now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+
+
 def format_seconds(s: float | None) -> str:
     """``1.23 ms``-style rendering with 3 significant digits; an em dash for ``None``."""
     if s is None:
@@ -117,11 +103,7 @@ def format_seconds(s: float | None) -> str:
 
 
 def _num(x: float | None) -> str:
-    if x is None:
-        return _DASH
-    if x == 0:
-        return "0"
-    return f"{x:.2e}" if abs(x) >= 1e4 or abs(x) < 1e-2 else f"{x:.3g}"
+    return _DASH if x is None else "0" if x == 0 else f"{x:.2e}" if abs(x) >= 1e4 or abs(x) < 1e-2 else f"{x:.3g}"
 
 
 def _acc(a: float | str | None) -> str:
@@ -131,9 +113,9 @@ def _acc(a: float | str | None) -> str:
 def _best_peers(rows: Sequence[Row]) -> dict[int, Row]:
     best: dict[int, Row] = {}
     for r in rows:
-        if r.measured and r.is_peer and r.us_per_char is not None:
-            if r.batch not in best or r.us_per_char < best[r.batch].us_per_char:
-                best[r.batch] = r
+        if r.measured and r.is_peer and r.us_per_char is not None and (
+                r.batch not in best or r.us_per_char < best[r.batch].us_per_char):
+            best[r.batch] = r
     return best
 
 
@@ -151,9 +133,7 @@ def _metric(r: Row, metric: str) -> float | None:
 
 
 def _fmt_metric(x: float, metric: str) -> str:
-    if metric == "success":
-        return f"{100 * x:.1f} %"
-    return format_seconds(x) if metric == "compile" else f"{x:.3g} µs"
+    return f"{100 * x:.1f} %" if metric == "success" else format_seconds(x) if metric == "compile" else f"{x:.3g} µs"
 
 
 def _who(r: Row) -> str:
@@ -245,13 +225,17 @@ def _version(dist: str) -> str:
         return "not installed"
 
 
+def usable_cores() -> int:
+    """Cores this process may use."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def collect_environment() -> dict[str, str]:
     """Machine and library facts for the report header (CPU, cores, devices, versions, x64)."""
     import jax
 
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    env = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "CPU": _cpu_model(),
-           "cores": f"{os.cpu_count()} logical, {usable} usable by this process",
+    env = {"date": utc_now(), "CPU": _cpu_model(),
+           "cores": f"{os.cpu_count()} logical, {usable_cores()} usable by this process",
            "devices": ", ".join(f"{d.platform}:{d.id} ({getattr(d, 'device_kind', '?')})" for d in jax.devices()),
            "Python": platform.python_version()}
     env.update({d: _version(d) for d in ("jax", "jaxlib", "equinox", "optimistix", "numpy", "scipy", "jaxopt",

@@ -1,9 +1,9 @@
 """Timing, and the one harness (:class:`Runner`) that turns a measurement into a :class:`~benchmarks.report.Row`.
 
-Compile time is ``jax.jit(f).lower(*args).compile()`` on a fresh ``jax.jit`` object; run time is
-the median (min) over samples, after warm-up, of one call waited for with ``block_until_ready``
-(calls shorter than ``min_sample_s`` are repeated inside a sample; calls over a second are
-sampled only within the row budget). The two are reported apart.
+Compile time is ``jax.jit(f).lower(*args).compile()`` on a fresh ``jax.jit`` object; run time is the
+median (min) over samples, after warm-up, of one call waited for with ``block_until_ready`` (calls
+shorter than ``min_sample_s`` are repeated inside a sample; calls over a second are sampled only
+within the row budget). The two are reported apart.
 """
 
 from __future__ import annotations
@@ -27,18 +27,19 @@ _CALL_BUDGET_FACTOR = 4.0  # a row is skipped when one call is expected to take 
 
 
 @dataclasses.dataclass(frozen=True)
-class TimingStats:
-    """Seconds per call: median and min over the samples, every sample, calls per sample, warm-ups."""
+class Timing:
+    """Seconds per call, median and min over the samples (``all``, or their count ``samples``), calls per sample."""
 
     median: float
-    min: float
-    all: tuple[float, ...]
-    number: int
-    warmup: int
+    min: float | None
+    samples: int
+    number: int = 1
+    all: tuple[float, ...] = ()
 
-    @property
-    def repeats(self) -> int:
-        return len(self.all)
+    repeats = property(lambda self: self.samples)
+
+
+TimingStats = Timing
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,10 +49,7 @@ class CompileStats:
     lower: float
     compile: float
     compiled: Any = dataclasses.field(repr=False, compare=False)
-
-    @property
-    def total(self) -> float:
-        return self.lower + self.compile
+    total = property(lambda self: self.lower + self.compile)
 
 
 def compile_time(jitted: Callable[..., Any], *args: Any) -> CompileStats:
@@ -71,7 +69,7 @@ def _call_blocking(fn: Callable[..., Any], args: tuple, number: int) -> float:
 
 
 def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 7, warmup: int = 2, min_sample_s: float = 2e-3,
-              max_total_s: float | None = None, number: int | None = None) -> TimingStats:
+              max_total_s: float | None = None, number: int | None = None) -> Timing:
     """Median and min seconds of ``fn(*args)`` after ``warmup`` calls (one if it takes over a second);
     calls faster than ``min_sample_s`` run ``number`` times per sample (calibrated unless given);
     sampling stops past ``max_total_s`` once 3 samples (or ``repeats``) were taken."""
@@ -92,25 +90,15 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 7, warmup: int 
         samples.append(s / number)
         if max_total_s is not None and spent > max_total_s and i + 1 >= min(3, repeats):
             break
-    return TimingStats(statistics.median(samples), min(samples), tuple(samples), number, warmup)
-
-
-@dataclasses.dataclass(frozen=True)
-class Timing:
-    """What :func:`sample_call` measured: median and min seconds over ``samples`` calls."""
-
-    median: float
-    min: float
-    samples: int
+    return Timing(statistics.median(samples), min(samples), len(samples), number, tuple(samples))
 
 
 def sample_call(config: Any, fn: Callable[..., Any], args: tuple, first_s: float) -> Timing:
     """Time ``fn(*args)`` within ``config``'s budget after the caller's first call (``first_s``), which
     is the first sample of a call over a second (more are taken while they fit in ``max_row_s``)."""
     if first_s <= _LONG_CALL_S:
-        st = time_call(fn, *args, repeats=config.repeats, warmup=max(config.warmup - 1, 0),
-                       max_total_s=config.max_row_s)
-        return Timing(st.median, st.min, st.repeats)
+        return time_call(fn, *args, repeats=config.repeats, warmup=max(config.warmup - 1, 0),
+                         max_total_s=config.max_row_s)
     samples = [first_s]
     while len(samples) < config.repeats and sum(samples) + samples[-1] <= config.max_row_s:
         samples.append(_call_blocking(fn, args, 1))

@@ -1,9 +1,5 @@
-"""Adapters that run the benchmark problems in other libraries (or plain numpy).
-
-Each adapter imports its library lazily, through :func:`require`, so that a missing peer raises
-:class:`PeerUnavailable` with a readable reason; the benchmark catches it and reports the peer as a
-``skipped: <reason>`` row instead of failing.
-"""
+"""Adapters that run the benchmark problems in other libraries (or plain numpy); a missing library raises
+:class:`PeerUnavailable` (through :func:`require`), which the benchmark reports as a ``skipped`` row."""
 
 from __future__ import annotations
 

@@ -1,14 +1,6 @@
-"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: the same problems as :mod:`solvers.problems`.
-
-The unicycle is Crocoddyl's C++ ``ActionModelUnicycle`` (exactly :func:`solvers.problems.unicycle`),
-or the same model in Python to measure what a Python action model costs; the LQ problem is the C++
-``ActionModelLQR`` (cost ``0.5 x'Qx + 0.5 u'Ru + x'N u + q'x + r'u``, dynamics ``x+ = A x + B u + f``);
-the pendulum and the cart-pole are Python ``ActionModelAbstract`` subclasses with the explicit-Euler
-dynamics and quadratic cost of :mod:`solvers.problems` and analytic derivatives: exact cost
-derivatives and first derivatives of the dynamics (``Fx, Fu``), which is all Crocoddyl's DDP
-solvers use. Single solves are timed one call per sample by the benchmark, which reports their
-spread: on the machine this was written on they were sometimes ~100x slower for the same solve.
-"""
+"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR``, and
+Python action models of :mod:`solvers.problems` (explicit Euler, quadratic cost, exact cost derivatives and
+first derivatives of the dynamics ``Fx, Fu``, all that Crocoddyl's DDP solvers use)."""
 
 from __future__ import annotations
 
@@ -52,7 +44,8 @@ def python_model_class(name: str) -> type:
 
 def _build_classes(croc) -> dict[str, type]:
     class _Quadratic(croc.ActionModelAbstract):
-        """Cost ``0.5 (x-g)'diag(W)(x-g) + 0.5 u'diag(R)u`` and Euler dynamics ``x + dt xdot``."""
+        """Cost ``0.5 (x-g)'diag(W)(x-g) + 0.5 u'diag(R)u``, dynamics ``x + dt xdot(x, u)`` (``jac``: its
+        derivatives ``(d xdot / dx, d xdot / du)``), both defined by the subclasses."""
 
         nx, nu_ = 0, 0
 
@@ -62,12 +55,6 @@ def _build_classes(croc) -> dict[str, type]:
             self.terminal, self.dt, self.goal = bool(terminal), float(a["dt"]), a["goal"]
             self.W, self.Rw = (a["QT"] if terminal else a["Q"]), a["R"]
             self._Lxx, self._Luu = np.diag(self.W), np.diag(self.Rw)
-
-        def xdot(self, x, u):  # [nx]
-            raise NotImplementedError
-
-        def jac(self, x, u):  # (d xdot / dx [nx, nx], d xdot / du [nx, nu])
-            raise NotImplementedError
 
         def calc(self, data, x, u=None):
             dx = x - self.goal
@@ -98,8 +85,8 @@ def _build_classes(croc) -> dict[str, type]:
         def __init__(self, args, terminal=False):
             super().__init__(args, terminal)
             a = self.a
-            self.ml2, self.mgl = float(a["mass"] * a["length"] ** 2), float(a["mass"] * a["gravity"] * a["length"])
-            self.b = float(a["damping"])
+            self.ml2, self.mgl, self.b = (float(a["mass"] * a["length"] ** 2),
+                                          float(a["mass"] * a["gravity"] * a["length"]), float(a["damping"]))
 
         def xdot(self, x, u):
             th, om = x
@@ -116,9 +103,8 @@ def _build_classes(croc) -> dict[str, type]:
 
         def __init__(self, args, terminal=False):
             super().__init__(args, terminal)
-            a = self.a
-            self.mc, self.mp = float(a["cart_mass"]), float(a["pole_mass"])
-            self.l, self.g = float(a["pole_length"]), float(a["gravity"])
+            self.mc, self.mp, self.l, self.g = (float(self.a[k]) for k in ("cart_mass", "pole_mass", "pole_length",
+                                                                            "gravity"))
 
         def xdot(self, x, u):
             _, th, v, om = x
@@ -170,10 +156,8 @@ def _shooting(croc, x0, running, terminal, T: int, bounds=None):
     return croc.ShootingProblem(np.asarray(x0, dtype=np.float64), [running] * T, terminal)
 
 
-def unicycle_problem(
-    T: int, x0: Sequence[float], *, state_weight: float, control_weight: float, dt: float,
-    bounds: tuple[np.ndarray, np.ndarray] | None = None, python_model: bool = False,
-):
+def unicycle_problem(T: int, x0: Sequence[float], *, state_weight: float, control_weight: float, dt: float,
+                     bounds: tuple[np.ndarray, np.ndarray] | None = None, python_model: bool = False):
     """A ``ShootingProblem`` of ``T`` unicycle knots (C++ ``ActionModelUnicycle``, or the Python
     :class:`UnicycleModel` with ``python_model=True``); ``bounds`` sets ``u_lb``/``u_ub`` (BoxDDP)."""
     croc = load_crocoddyl()
@@ -195,8 +179,8 @@ def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int, bounds=None):
     ``S`` is ``N'``; Crocoddyl requires ``[[Q, N], [N', R]]`` positive semi-definite)."""
     croc = load_crocoddyl()
     arr = lambda z: np.ascontiguousarray(np.asarray(z, dtype=np.float64))  # noqa: E731
-    running, terminal = (croc.ActionModelLQR(*(arr(z) for z in (A, B, Q, R, N, f, q, r))) for _ in range(2))
-    return _shooting(croc, x0, running, terminal, T, bounds)
+    return _shooting(croc, x0, *(croc.ActionModelLQR(*(arr(z) for z in (A, B, Q, R, N, f, q, r))) for _ in range(2)),
+                     T, bounds)
 
 
 def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
@@ -208,11 +192,7 @@ def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
 
 
 # --- solving ------------------------------------------------------------------------------------------
-def make_solver(problem, solver: str = "SolverDDP", th_stop: float | None = None):
-    """``crocoddyl.<solver>(problem)``; ``th_stop`` sets the stopping threshold (default 1e-9)."""
-    croc = load_crocoddyl()
-    s = getattr(croc, solver)(problem)
-    if th_stop is not None:
-        s.th_stop = float(th_stop)
-    return s
+def make_solver(problem, solver: str = "SolverDDP"):
+    """``crocoddyl.<solver>(problem)``."""
+    return getattr(load_crocoddyl(), solver)(problem)
 

@@ -1,18 +1,10 @@
-"""MuJoCo (C) and MJX as the peers of the ``physics`` benchmark, on jaxanim's exported MJCF.
-
-One MuJoCo body per jaxanim body, its frame at the body's center of mass, so ``xpos`` is jaxanim's
-``BodyState.position``; a ``freejoint`` on the root. Three ways to step it: a Python loop of
-``mj_step`` over one ``MjData`` per character, each reset first (:meth:`MujocoSim.step_loop`);
-``mujoco.rollout.rollout`` on a persistent C++ thread pool (:meth:`MujocoSim.rollout`); MJX,
-``jax.jit(jax.vmap(scan of mjx.step))`` (:func:`mjx_rollout`). Missing libraries raise
-:class:`benchmarks.peers.PeerUnavailable`.
-"""
+"""MuJoCo (C) and MJX as the peers of the ``physics`` benchmark, on jaxanim's exported MJCF (one MuJoCo body
+per jaxanim body, framed at its center of mass, so ``xpos`` is ``BodyState.position``; a free joint on the root)."""
 
 from __future__ import annotations
 
 import contextlib
 import io
-import os
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -21,12 +13,9 @@ from . import PeerUnavailable, require
 
 __all__ = ["MujocoSim", "load_mjx", "load_mujoco", "mjx_rollout"]
 
-_HINT = "pip install mujoco"
-
-
 def load_mujoco():
     """The ``mujoco`` module, or :class:`PeerUnavailable`."""
-    return require("mujoco", _HINT)
+    return require("mujoco", "pip install mujoco")
 
 
 def load_mjx():
@@ -133,11 +122,3 @@ def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple
         return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), d, None, length=nstep)[0].qpos
 
     return jax.jit(jax.vmap(one)), (dx,)
-
-
-def cpu_threads() -> int:
-    """Cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1

@@ -1,9 +1,5 @@
-"""Plain-numpy forward kinematics, vectorized over the batch: the "no JAX at all" baseline.
-
-One Python iteration per joint, each a batched ``np.matmul`` of ``[B,3,3]`` rotations and an
-``einsum`` matrix-vector product (the fastest numpy forms for these shapes); the inputs' dtype is
-kept. It shares no code with jaxanim, so it is also an independent reference.
-"""
+"""Plain-numpy forward kinematics, vectorized over the batch: the "no JAX at all" baseline and an
+independent reference (one Python iteration per joint, batched ``np.matmul`` and ``einsum``; dtype kept)."""
 
 from __future__ import annotations
 
@@ -16,8 +12,7 @@ __all__ = ["NumpyFK", "forward_kinematics", "quat_to_matrix"]
 
 
 class NumpyFK(NamedTuple):
-    """Batched FK: ``rotations [B, joints, 3, 3]`` (``R_world_joint``), ``positions [B, joints, 3]`` and
-    ``end_site_positions [B, end_sites, 3]`` (world)."""
+    """``rotations [B, joints, 3, 3]`` (``R_world_joint``), ``positions [B, joints, 3]``, ``end_site_positions``."""
 
     rotations: np.ndarray
     positions: np.ndarray
@@ -25,43 +20,27 @@ class NumpyFK(NamedTuple):
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``[..., 3, 3]`` (acting on column vectors, ``q``'s dtype) of wxyz quaternions
-    ``[..., 4]``, normalized first."""
+    """Rotation matrices ``[..., 3, 3]`` (``q``'s dtype) of wxyz quaternions ``[..., 4]``, normalized first."""
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
-    m = np.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        axis=-1,
-    )
+    m = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                  2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                  2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
     return m.reshape(q.shape[:-1] + (3, 3)).astype(q.dtype, copy=False)
 
 
-def forward_kinematics(
-    parents: Sequence[int],
-    end_site_parents: Sequence[int],
-    end_site_offsets: np.ndarray,
-    rotations: np.ndarray,
-    translations: np.ndarray,
-) -> NumpyFK:
+def forward_kinematics(parents: Sequence[int], end_site_parents: Sequence[int], end_site_offsets: np.ndarray,
+                       rotations: np.ndarray, translations: np.ndarray) -> NumpyFK:
     """``R_world_j = R_world_parent @ R_parent_j``, ``p_world_j = p_world_parent + R_world_parent @ t_parent_j``
-    and End Sites at their joint's transform of their OFFSET, for ``rotations [B, joints, 3, 3]`` and
-    ``translations [B, joints, 3]`` (``parents[j] < j``, root first)."""
+    and End Sites at their joint's transform of their OFFSET (``rotations [B, joints, 3, 3]``, root first)."""
     b, nj = rotations.shape[:2]
-    dtype = rotations.dtype
-    R = np.empty((b, nj, 3, 3), dtype=dtype)
-    p = np.empty((b, nj, 3), dtype=dtype)
-    R[:, 0] = rotations[:, 0]
-    p[:, 0] = translations[:, 0]
+    R = np.empty((b, nj, 3, 3), dtype=rotations.dtype)
+    p = np.empty((b, nj, 3), dtype=rotations.dtype)
+    R[:, 0], p[:, 0] = rotations[:, 0], translations[:, 0]
     for j in range(1, nj):
-        par = parents[j]
-        Rp = R[:, par]
+        Rp = R[:, parents[j]]
         np.matmul(Rp, rotations[:, j], out=R[:, j])
-        p[:, j] = p[:, par] + np.einsum("bij,bj->bi", Rp, translations[:, j])
-    off = np.asarray(end_site_offsets, dtype=dtype)
+        p[:, j] = p[:, parents[j]] + np.einsum("bij,bj->bi", Rp, translations[:, j])
     idx = np.asarray(end_site_parents, dtype=np.int64)
-    ends = p[:, idx] + np.einsum("beij,ej->bei", R[:, idx], off)
+    ends = p[:, idx] + np.einsum("beij,ej->bei", R[:, idx], np.asarray(end_site_offsets, dtype=rotations.dtype))
     return NumpyFK(R, p, ends)

@@ -1,10 +1,6 @@
-"""Pinocchio damped least-squares IK (closed-loop inverse kinematics, CLIK) in a Python loop.
-
-Per iteration: ``computeJointJacobians`` + ``updateFramePlacements``; the world-axes error of each
-frame ``e_k = [p_k - p(q); log3(R_k R(q)^T)]`` (stop when every position error and angle is below
-its tolerance); the stacked ``LOCAL_WORLD_ALIGNED`` frame Jacobians ``J`` and the step
-``dq = J^T (J J^T + lambda I)^{-1} e``; ``q = integrate(q, dq)``. Reading results out is timed.
-"""
+"""Pinocchio damped least-squares IK (CLIK) in a Python loop: per iteration the world-axes errors
+``[p_k - p(q); log3(R_k R(q)^T)]`` of every frame, stacked ``LOCAL_WORLD_ALIGNED`` Jacobians ``J`` and
+``q = integrate(q, J^T (J J^T + lambda I)^{-1} e)``; it stops when every error is under its tolerance."""
 
 from __future__ import annotations
 

@@ -1,13 +1,7 @@
-"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model``, and timed loops.
-
-The root is a ``JointModelFreeFlyer`` at the world origin, every other joint a ``JointModelSpherical``
-at its OFFSET with an identity rotation, so Pinocchio's joint frames are jaxanim's; each joint has a
-``JOINT`` frame of its name and each End Site an ``OP_FRAME`` named ``<joint>_End``. Conventions
-converted here: Pinocchio's ``q`` stores quaternions **xyzw** (jaxanim: wxyz); its free-flyer and
-spherical velocities are in the *local* frames (``R <- R exp(w)``), jaxanim's Jacobian columns
-increments in the *parent* frame (``R <- exp(d) R``), and ``exp(d) R = R exp(R^T d)``
-(:func:`to_parent_frame_columns`). The timed loops copy nothing out of Pinocchio.
-"""
+"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model`` (free flyer root, spherical joints
+at their OFFSETs, a ``JOINT`` frame per joint, an ``OP_FRAME`` per End Site), and timed loops. Pinocchio's
+``q`` stores quaternions xyzw and its velocities are in local frames (``R <- R exp(w)``); jaxanim's columns are
+parent-frame increments (``R <- exp(d) R = R exp(R^T d)``, :func:`to_parent_frame_columns`)."""
 
 from __future__ import annotations
 
@@ -47,27 +41,18 @@ def build_model(skeleton, translations: np.ndarray | None = None) -> PinocchioSk
     offsets = np.asarray(skeleton.offsets if translations is None else translations, dtype=np.float64)
     model = pin.Model()
     model.name = "jaxanim_skeleton"
-    joint_ids: list[int] = []
-    joint_frames: list[int] = []
-    frame_ids: dict[str, int] = {}
+    joint_ids, joint_frames, end_ids, frame_ids = [], [], [], {}
     for j, (name, parent) in enumerate(zip(skeleton.names, skeleton.parents)):
-        if parent < 0:
-            jid = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), name)
-            fid = model.addJointFrame(jid, 0)
-        else:
-            jid = model.addJoint(joint_ids[parent], pin.JointModelSpherical(), pin.SE3(np.eye(3), offsets[j].copy()),
-                                 name)
-            fid = model.addJointFrame(jid, joint_frames[parent])
+        root = parent < 0
+        jid = model.addJoint(0 if root else joint_ids[parent], pin.JointModelFreeFlyer() if root else
+                             pin.JointModelSpherical(), pin.SE3.Identity() if root else
+                             pin.SE3(np.eye(3), offsets[j].copy()), name)
         joint_ids.append(jid)
-        joint_frames.append(fid)
-        frame_ids[name] = fid
-    end_ids: list[int] = []
+        joint_frames.append(frame_ids.setdefault(name, model.addJointFrame(jid, 0 if root else joint_frames[parent])))
     for name, parent, off in zip(skeleton.end_site_names, skeleton.end_site_parents,
                                  np.asarray(skeleton.end_site_offsets, dtype=np.float64)):
-        fid = model.addFrame(pin.Frame(name, joint_ids[parent], joint_frames[parent], pin.SE3(np.eye(3), off.copy()),
-                                       pin.FrameType.OP_FRAME))
-        end_ids.append(fid)
-        frame_ids[name] = fid
+        end_ids.append(frame_ids.setdefault(name, model.addFrame(pin.Frame(
+            name, joint_ids[parent], joint_frames[parent], pin.SE3(np.eye(3), off.copy()), pin.FrameType.OP_FRAME))))
     return PinocchioSkeleton(pin, model, model.createData(), tuple(joint_ids), tuple(end_ids), frame_ids)
 
 
@@ -117,8 +102,7 @@ def frame_jacobians(ps: PinocchioSkeleton, qs: Sequence[np.ndarray], frame_ids: 
     out = np.empty((len(qs), len(frame_ids), 6, model.nv))
     for b, q in enumerate(qs):
         pin.computeJointJacobians(model, data, q)
-        for k, fid in enumerate(frame_ids):
-            out[b, k] = pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        out[b] = [pin.getFrameJacobian(model, data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED) for f in frame_ids]
     return out
 
 
