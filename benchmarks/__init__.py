@@ -88,7 +88,6 @@ class BenchmarkSpec:
         module, _, func = self.target.partition(":")
         return getattr(importlib.import_module(module), func)
 
-
 REGISTRY: dict[str, BenchmarkSpec] = {s.name: s for s in (
     BenchmarkSpec("fk", "benchmarks.fk:run_fk",
                   "forward kinematics, 31-joint CMU skeleton: jaxanim vs naive JAX, numpy, Pinocchio"),

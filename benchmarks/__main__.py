@@ -49,16 +49,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     jax.config.update("jax_enable_x64", True)  # float64 rows and references; float32 rows are explicit
 
-    kw: dict = {}
+    kw = {k: v for k in ("repeats", "warmup", "loop_cap", "data_dir") if (v := getattr(args, k)) is not None}
+    kw.update(dtypes=("float32", "float64") if args.dtype == "both" else (args.dtype,), verbose=not args.quiet)
     if args.batches:
         kw["batches"] = tuple(int(b) for b in args.batches.split(","))
     if args.only:
         kw["only"] = tuple(x.strip() for x in args.only.split(",") if x.strip())
-    for key in ("repeats", "warmup", "loop_cap", "data_dir"):
-        if getattr(args, key) is not None:
-            kw[key] = getattr(args, key)
-    kw["dtypes"] = ("float32", "float64") if args.dtype == "both" else (args.dtype,)
-    kw["verbose"] = not args.quiet
     config = BenchConfig.make_quick(**kw) if args.quick else BenchConfig(**kw)
 
     env = collect_environment()

@@ -12,6 +12,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxanim import forward_kinematics, jacobian, read_bvh
 
 from .peers import PeerUnavailable
 from .peers import numpy_fk as numpy_peer
@@ -31,7 +32,6 @@ MAX_ANGLE_DEG = 45.0
 _ACCURACY_SAMPLES = 64  # configurations on which Python-loop peers are checked (untimed)
 
 
-# --- problem ----------------------------------------------------------------------------------------
 def _quat_mul_np(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
@@ -57,8 +57,6 @@ class Problem:
     ``trans [B, J, 3]`` (float64 numpy), and the clip as read (``motion``)."""
 
     def __init__(self, path: pathlib.Path, max_batch: int, seed: int = SEED):
-        from jaxanim import read_bvh
-
         skeleton, self.motion = read_bvh(str(path))
         self.skeleton = _cast(skeleton, jnp.float64)
         clip_q = np.asarray(self.motion.rotations, dtype=np.float64)
@@ -84,7 +82,6 @@ def load_problem(config, max_batch: int) -> Problem | str:
     return Problem(path, max_batch) if isinstance(path, pathlib.Path) else path
 
 
-# --- baselines written here -------------------------------------------------------------------------
 class NaiveFK(NamedTuple):  # the fields of jaxanim's FK result
     rotations: jax.Array
     positions: jax.Array
@@ -144,8 +141,6 @@ def perturbed_sites(skeleton, rotations: jax.Array, translations: jax.Array, sit
     local rotation ``R_j`` becomes ``exp(d_j) R_j``; ``fk(skeleton, R_local, t_local)`` defaults to
     jaxanim's ``forward_kinematics``. An End Site has its joint's rotation.
     """
-    from jaxanim import forward_kinematics
-
     J = skeleton.num_joints
     R_local = _so3_exp(delta[3:].reshape(J, 3)) @ _quat_to_matrix(rotations)
     res = (fk or forward_kinematics)(skeleton, R_local, translations.at[0].add(delta[:3]))
@@ -173,7 +168,6 @@ def autodiff_jacobian(skeleton, rotations: jax.Array, translations: jax.Array, s
     return jac(coordinates)(zero)
 
 
-# --- the shared loop ---------------------------------------------------------------------------------
 def _max_err(pairs: Sequence[tuple[Any, np.ndarray]]) -> float:
     return max(float(np.max(np.abs(np.asarray(a, dtype=np.float64) - b), initial=0.0)) for a, b in pairs)
 
@@ -234,8 +228,6 @@ def _bench(config, name: str, title: str, description: str, label: str, batches:
     body(Runner(config, table), problem, sorted(config.dtypes, key=lambda d: d != "float64"))
     return [table]
 
-
-# --- fk ----------------------------------------------------------------------------------------------
 _FK_REF = "jaxanim (quaternions)"
 _PIN_FK = "Pinocchio forwardKinematics"
 
@@ -254,8 +246,6 @@ def run_fk(config) -> list[Table]:
                Target("FK compile ≤ 2 s (jaxanim rows)", sel("jaxanim"), 2.0, "compile", worst=True)]
 
     def body(run: Runner, problem: Problem, dtypes: list[str]) -> None:
-        from jaxanim import forward_kinematics
-
         skel64 = problem.skeleton
         parents, esp, eso64 = skel64.parents, skel64.end_site_parents, np.asarray(skel64.end_site_offsets)
         ref = _Reference(lambda: _outputs(jax.jit(jax.vmap(functools.partial(forward_kinematics, skel64)))(
@@ -300,8 +290,6 @@ def _outputs(out) -> tuple:  # what FK's accuracy is judged on
 
 def _fk_validation_notes(config, problem: Problem) -> list[str]:
     """jaxanim float64 and the Pinocchio model against the shared FK reference on the clip's frames."""
-    from jaxanim import forward_kinematics
-
     path = pathlib.Path(config.data_dir) / REFERENCE
     if not path.is_file():
         return [f"shared FK reference `{REFERENCE}` not found: the reference check was not run."]
@@ -322,8 +310,6 @@ def _fk_validation_notes(config, problem: Problem) -> list[str]:
     return notes + [f"Pinocchio model (`data.oMi`, End Site frames) vs the same reference: max abs error "
                     f"{_max_err(zip(pos, want)):.2e}."]
 
-
-# --- jacobian ----------------------------------------------------------------------------------------
 _JAC_REF = "jacfwd of jaxanim FK"
 _PIN_JAC = "Pinocchio"
 
@@ -350,8 +336,6 @@ def run_jacobian(config) -> list[Table]:
              ("jacrev of naive FK", jax.jacrev, _naive_fk_skeleton, True, "jit(vmap(jacrev(perturbed naive_fk)))")]
 
     def body(run: Runner, problem: Problem, dtypes: list[str]) -> None:
-        from jaxanim import jacobian
-
         skel64 = problem.skeleton
         ref = _Reference(lambda: (jax.jit(jax.vmap(lambda q, t: autodiff_jacobian(skel64, q, t, sites)))(
             *problem.jax_inputs(jnp.float64, max(batches))),))

@@ -13,8 +13,11 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
 import solvers
+from jaxanim import read_bvh
+from jaxanim.ik import Target as IKTarget, solve_ik, solve_ik_ccd
 
 from .fk import CLIP, _axis_quat_np, _cast, _quat_mul_np, pinocchio
 from .peers import require
@@ -43,7 +46,6 @@ CLIK_DAMPING = 1e-4
 _SLOW_MAX_BATCH = 1024  # peers and baselines are not run above this in full mode (time budget)
 
 
-# --- problem ------------------------------------------------------------------------------------------
 def _matrix_to_quat_np(R: np.ndarray) -> np.ndarray:
     """wxyz unit quaternions (w >= 0) of rotation matrices ``[..., 3, 3]`` (Shepperd's method)."""
     m = {(i, j): np.asarray(R, np.float64)[..., i, j] for i in range(3) for j in range(3)}
@@ -114,8 +116,6 @@ class ProblemSet:
 
     def targets(self, dtype: Any, batch: int | None = None) -> tuple:
         """The first ``batch`` problems' :class:`jaxanim.ik.Target` s, with a leading batch axis."""
-        from jaxanim.ik import Target as IKTarget
-
         b = self.batch if batch is None else batch
         return tuple(IKTarget(s, jnp.asarray(self.positions[:b, k], dtype),
                               jnp.asarray(self.orientations[:b, k], dtype), jnp.ones((b,), dtype))
@@ -195,34 +195,26 @@ def evaluate(skeleton, targets, rotations, translations, *, position_tolerance: 
 def batched_solver(skeleton, solve: Callable | None = None, **kwargs) -> Callable:
     """A fresh ``jax.jit(jax.vmap(solve(skeleton, targets, rotations, translations, **kwargs)))``;
     ``solve`` defaults to :func:`jaxanim.ik.solve_ik`."""
-    if solve is None:
-        from jaxanim.ik import solve_ik as solve
+    solve = solve_ik if solve is None else solve
     return jax.jit(jax.vmap(lambda targets, q, t: solve(skeleton, targets, q, t, **kwargs)))
 
 
 def load_skeleton(config):
     """The CMU skeleton (float64), or the reason it cannot be loaded."""
-    from jaxanim import read_bvh
-
     path = config.data_file(CLIP)
     return _cast(read_bvh(str(path))[0], jnp.float64) if isinstance(path, pathlib.Path) else path
 
 
-# --- implementations ------------------------------------------------------------------------------------
 def _tol(dtype) -> dict:
     """``rtol, atol`` of the adaptive solvers: the library defaults in float64, looser in float32."""
     return dict(rtol=1e-8, atol=1e-10) if jnp.dtype(dtype) == jnp.float64 else dict(rtol=1e-5, atol=1e-7)
 
 
 def _ik(solver) -> dict:
-    from jaxanim.ik import solve_ik
-
     return dict(solve=solve_ik, solver=solver, regularization=REGULARIZATION)
 
 
 def _optx(dtype, name: str) -> dict:
-    import optimistix as optx
-
     return _ik(solvers.OptimistixSolver(getattr(optx, name)(**_tol(dtype)), max_steps=MAX_STEPS))
 
 
@@ -235,11 +227,8 @@ def _jaxopt(dtype) -> dict:
 
 
 def _ccd(dtype, problems: ProblemSet) -> dict:
-    from jaxanim.ik import solve_ik_ccd
-
     return dict(solve=solve_ik_ccd, max_sweeps=CCD_MAX_SWEEPS, fixed_sweeps=False,
                 position_tolerance=0.5 * problems.position_tolerance, orientation_tolerance=0.5 * ORIENTATION_TOLERANCE)
-
 
 _LM_ADAPTIVE = "jaxanim LM (adaptive)"
 _LM_FIXED = f"jaxanim LM (fixed {FIXED_STEPS})"

@@ -11,8 +11,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+import solvers
+from solvers import problems
+from solvers.problems import LQProblem
 
-from .peers import PeerUnavailable
+from .peers import crocoddyl_oc as co, require
 from .report import Row, Table, Target, format_seconds, sel
 from .timing import Runner, Timing, status_counts
 
@@ -30,13 +33,14 @@ UPRIGHT_TOLERANCE = 0.1  # rad: success needs |theta_T - pi| below this
 AGREE_RTOL = 1e-6  # swing-up final costs "agree" below this relative difference
 UNICYCLE_MAX_STEPS = 500  # both sides (box-DDP needs more than 100 here)
 _CROC = "Crocoddyl"
+_STARTS = {"pendulum": "angle uniform in ±π/4 of hanging, rate in ±0.5 rad/s",
+           "cart_pole": "cart in ±0.2 m, pole angle in ±0.3 rad of hanging, rates in ±0.2"}
 _SCIPY = "scipy solve_discrete_are (loop)"
 
 
 @dataclasses.dataclass(frozen=True)
 class OCSizes:
-    """Problem sizes; the defaults are the issue's (tests shrink them). ``config.batches`` overrides
-    ``dare_batches`` and ``swing_batches``; ``swing_T=None`` keeps the problems' horizon (100)."""
+    """Problem sizes (tests shrink them); ``config.batches`` overrides the batches, ``swing_T=None`` keeps 100."""
 
     unicycle_T: int = 200
     lqr_n: int = 37
@@ -54,11 +58,9 @@ class OCSizes:
     swing_T: int | None = None
 
 
-# --- problems -----------------------------------------------------------------------------------------
 def make_lq(n: int = 37, m: int = 12, T: int = 100, seed: int = SEED) -> dict[str, np.ndarray]:
-    """A seeded time-invariant LQ problem (float64 numpy) in Crocoddyl's ``ActionModelLQR`` terms:
-    ``A`` at spectral radius 1.02, ``[[Q, N], [N', R]] = L L' + 0.1 I``, affine terms ``q, r``, drift
-    ``f``; cost ``0.5 x'Qx + 0.5 u'Ru + x'N u + q'x + r'u``, terminal ``0.5 x'Qx + q'x``."""
+    """A seeded LQ problem in Crocoddyl's ``ActionModelLQR`` terms (``A`` at spectral radius 1.02,
+    ``[[Q, N], [N', R]] = L L' + 0.1 I``, affine ``q, r``, drift ``f``; see the table's description)."""
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(n, n)) / np.sqrt(n)
     A *= 1.02 / np.abs(np.linalg.eigvals(A)).max()
@@ -70,8 +72,6 @@ def make_lq(n: int = 37, m: int = 12, T: int = 100, seed: int = SEED) -> dict[st
 
 
 def _lq_problem(d: dict[str, np.ndarray]):
-    from solvers.problems import LQProblem
-
     tile = lambda z: jnp.asarray(np.broadcast_to(z, (d["T"],) + z.shape), jnp.float64)  # noqa: E731
     return LQProblem(A=tile(d["A"]), B=tile(d["B"]), Q=tile(d["Q"]), R=tile(d["R"]), QT=jnp.asarray(d["Q"]),
                      x0=jnp.asarray(d["x0"]), S=tile(d["N"].T), q=tile(d["q"]), r=tile(d["r"]), qT=jnp.asarray(d["q"]),
@@ -79,8 +79,7 @@ def _lq_problem(d: dict[str, np.ndarray]):
 
 
 def make_dare_systems(count: int, n: int = 12, m: int = 4, seed: int = SEED) -> tuple[np.ndarray, ...]:
-    """``count`` seeded stabilizable DARE problems ``(A, B, Q, R)``: ``A`` Gaussian at spectral radius
-    1.1, ``B`` Gaussian, ``Q = G G' + 1e-3 I``, ``R = H H' + I`` (float64 numpy, leading batch axis)."""
+    """``count`` seeded stabilizable DARE problems ``(A, B, Q, R)`` (see the table's description)."""
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(count, n, n)) / np.sqrt(n)
     A *= (1.1 / np.abs(np.linalg.eigvals(A)).max(axis=-1))[:, None, None]
@@ -100,8 +99,7 @@ def riccati_residual(A, B, Q, R, P) -> np.ndarray:
 
 
 def initial_states(name: str, count: int, seed: int = SEED) -> np.ndarray:
-    """``[count, n]`` seeded swing-up starts near hanging: pendulum angle in ±pi/4, rate in ±0.5;
-    cart-pole cart in ±0.2 m, angle in ±0.3 rad, rates in ±0.2."""
+    """``[count, n]`` seeded swing-up starts near hanging (:data:`_STARTS`)."""
     rng = np.random.default_rng(seed)
     if name == "pendulum":
         return np.stack([rng.uniform(-np.pi / 4, np.pi / 4, count), rng.uniform(-0.5, 0.5, count)], axis=-1)
@@ -110,10 +108,7 @@ def initial_states(name: str, count: int, seed: int = SEED) -> np.ndarray:
     raise ValueError(f"name: expected 'pendulum' or 'cart_pole', got {name!r}")
 
 
-# --- shared pieces -----------------------------------------------------------------------------------
 def _ok(result) -> np.ndarray:
-    import solvers
-
     return np.asarray(result == solvers.RESULTS.successful)
 
 
@@ -122,8 +117,7 @@ def _rel(a: float, b: float) -> float:
 
 
 def _time_single(config, fn: Callable[[], Any]) -> tuple[Any, Timing, float]:
-    """Time a Crocoddyl single solve one call per sample (at least 15 within ``max_row_s``) so that
-    the spread shows; returns ``(first output, timing, slowest sample)``."""
+    """``(first output, timing, slowest sample)`` of one call per sample (at least 15 within ``max_row_s``)."""
     out = fn()
     samples: list[float] = []
     for _ in range(max(config.repeats, 15)):
@@ -136,8 +130,6 @@ def _time_single(config, fn: Callable[[], Any]) -> tuple[Any, Timing, float]:
 
 
 def _croc_single(run: Runner, impl: str, problem, solver: str, maxiter: int, accuracy: Callable, what: str) -> Row:
-    from .peers import crocoddyl_oc as co
-
     us0 = [np.zeros(problem.runningModels[0].nu)] * problem.T
     xs0 = problem.rollout(us0)
     s = co.make_solver(problem, solver)
@@ -165,26 +157,19 @@ def _jax_solve(run: Runner, impl: str, fn: Callable, args: tuple, b: int, accura
                    status=status_counts(out.result), extra=dict(ok=ok, cost=cost), note=head + note)
 
 
-# --- 1. unicycle --------------------------------------------------------------------------------------
 def _unicycle_table(config, sz: OCSizes) -> Table:
-    import solvers
-    from solvers import problems
-
     T = sz.unicycle_T
     (l0, l1), (h0, h1) = UNICYCLE_BOUNDS
     own, croc = sel(("jaxanim ilqr", "jaxanim ddp"), exact=True), sel(f"{_CROC} SolverDDP", exact=True)
     table = Table(
         "oc-unicycle", f"Optimal control: unicycle, T = {T}, one solve (Crocoddyl's ActionModelUnicycle)",
         accuracy_label="rel. cost diff vs Crocoddyl (box rows: BoxDDP)", description=(
-            f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: Euler step dt = 0.1, cost "
-            f"0.5 (10² |x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero initial "
-            f"controls. Box rows: u ∈ [{l0}, {h0}] × [{l1}, {h1}] (speed, turn rate; the unbounded optimum leaves "
-            "this box), jaxanim `bounds=` vs Crocoddyl `u_lb/u_ub` + SolverBoxDDP. One problem per call (batch 1), "
-            f"float64; ≤ {UNICYCLE_MAX_STEPS} iterations on both sides; jaxanim default tolerances, Crocoddyl "
-            "th_stop 1e-9. jaxanim rows are `jax.jit` of one solve, compiled ahead of time; Crocoddyl rows time "
-            "`solver.solve` on a built solver, one call per sample, with the spread of the samples in the notes. "
-            "Crocoddyl's solvers use first derivatives of the dynamics (as jaxanim ilqr does); jaxanim ddp also "
-            "uses second derivatives."),
+            f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: dt = 0.1, cost 0.5 (10² "
+            f"|x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls. Box rows: u ∈ "
+            f"[{l0}, {h0}] × [{l1}, {h1}] (which the unbounded optimum leaves), `bounds=` vs `u_lb/u_ub` + SolverBoxDDP. "
+            f"Batch 1, float64, ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default tolerances (`jax.jit`, compiled "
+            "ahead of time), Crocoddyl th_stop 1e-9 (`solver.solve`, one call per sample, spread in the notes). "
+            "Crocoddyl uses first derivatives of the dynamics (as jaxanim ilqr); jaxanim ddp also second ones."),
         targets=[Target("one unicycle solve within 2x of Crocoddyl SolverDDP, fastest samples (speedup ≥ 0.5x)",
                         own, 0.5, "min_us", versus=croc),
                  Target("the same, medians (speedup ≥ 0.5x)", own, 0.5, "us", versus=croc)])
@@ -194,20 +179,17 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
     ref: dict[bool, float] = {}
 
     def croc_row(solver: str, boxed: bool, python_model: bool = False) -> Row:
-        from .peers import crocoddyl_oc as co
-
         pb = co.unicycle_problem(T, UNICYCLE_X0, state_weight=10.0, control_weight=1.0, dt=0.1,
                                  bounds=(lo, hi) if boxed else None, python_model=python_model)
         what = ("Python action model (same dynamics and cost)" if python_model else "C++ ActionModelUnicycle") + (
             ", bounds" if boxed else "")
-        impl = f"{_CROC} {solver}" + (" (Python model)" if python_model else "")
-        row = _croc_single(run, impl, pb, solver, UNICYCLE_MAX_STEPS,
-                           lambda c, us: _rel(c, ref.setdefault(boxed, c)), what)
-        return row
+        return _croc_single(run, f"{_CROC} {solver}" + (" (Python model)" if python_model else ""), pb, solver,
+                            UNICYCLE_MAX_STEPS, lambda c, us: _rel(c, ref.setdefault(boxed, c)), what)
 
-    for solver, boxed in (("SolverDDP", False), ("SolverFDDP", False), ("SolverBoxDDP", True)):
-        run.add(f"{_CROC} {solver}", "float64", 1, lambda: croc_row(solver, boxed), peer=True)
-    run.add(f"{_CROC} SolverDDP (Python model)", "float64", 1, lambda: croc_row("SolverDDP", False, True), peer=True)
+    for solver, boxed, py in (("SolverDDP", False, False), ("SolverFDDP", False, False), ("SolverBoxDDP", True, False),
+                              ("SolverDDP", False, True)):
+        run.add(f"{_CROC} {solver}" + (" (Python model)" if py else ""), "float64", 1,
+                lambda: croc_row(solver, boxed, py), peer=True)
     for boxed in (False, True):
         for method in ("ilqr", "ddp"):
             def solve(x0, us, args, fn=getattr(solvers, method), boxed=boxed):
@@ -237,7 +219,6 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
     return table
 
 
-# --- 2. LQ problem ------------------------------------------------------------------------------------
 def _lqr_table(config, sz: OCSizes) -> Table:
     n, m, T = sz.lqr_n, sz.lqr_m, sz.lqr_T
     d = make_lq(n, m, T)
@@ -267,9 +248,7 @@ def _lqr_table(config, sz: OCSizes) -> Table:
             f"solvers.{method} on the problem as callbacks (LQProblem.as_control_problem)"))
 
     def croc_row(solver: str) -> Row:
-        from .peers import crocoddyl_oc as co
-
-        pb = co.lqr_problem(d["A"], d["B"], d["Q"], d["R"], d["N"], d["f"], d["q"], d["r"], d["x0"], T)
+        pb = co.lqr_problem(*(d[k] for k in ("A", "B", "Q", "R", "N", "f", "q", "r", "x0")), T)
         return _croc_single(run, f"{_CROC} {solver}", pb, solver, 10, acc, "ActionModelLQR (C++)")
 
     for solver in ("SolverDDP", "SolverFDDP", "SolverBoxDDP"):
@@ -282,10 +261,7 @@ def _lqr_table(config, sz: OCSizes) -> Table:
     return table
 
 
-# --- 3. DARE ------------------------------------------------------------------------------------------
 def _dare_table(config, sz: OCSizes) -> Table:
-    import solvers
-
     n, m = sz.dare_n, sz.dare_m
     batches = config.batches_for(sz.dare_batches)
     big = max(batches)
@@ -306,10 +282,7 @@ def _dare_table(config, sz: OCSizes) -> Table:
     ref: dict[str, np.ndarray] = {}
 
     def scipy_row() -> Row:
-        try:
-            import scipy.linalg as sl
-        except ImportError as exc:
-            raise PeerUnavailable(f"cannot import scipy: {exc}") from exc
+        sl = require("scipy.linalg")
         args = (A[:cap], B[:cap], Q[:cap], R[:cap])
         P, tm = run.python(lambda: np.stack([sl.solve_discrete_are(*(z[i] for z in args)) for i in range(cap)]))
         ref["P"] = P
@@ -342,7 +315,6 @@ def _dare_row(run: Runner, dare: Callable, args: tuple, b: int, accuracy: Callab
                    note=f"doubling steps {steps.mean():.1f} / {steps.max()} (mean / max)")
 
 
-# --- 4. swing-ups -------------------------------------------------------------------------------------
 def _agreement(cost, ok, ref: Row | None) -> str:
     """``agree/both (median rel diff)`` against Crocoddyl SolverDDP on the problems both solved."""
     if ref is None:
@@ -356,33 +328,26 @@ def _agreement(cost, ok, ref: Row | None) -> str:
 
 
 def _swing_table(config, sz: OCSizes, name: str) -> Table:
-    import solvers
-    from solvers import problems
-
     prob = getattr(problems, name)() if sz.swing_T is None else getattr(problems, name)(T=sz.swing_T)
     T, ai, max_steps = prob.horizon, ANGLE_INDEX[name], SWING_MAX_STEPS[name]
     batches = config.batches_for(sz.swing_batches)
     big = max(batches)
     x0s = initial_states(name, big)
-    start = {"pendulum": "angle uniform in ±π/4 of hanging, rate in ±0.5 rad/s",
-             "cart_pole": "cart in ±0.2 m, pole angle in ±0.3 rad of hanging, rates in ±0.2"}[name]
+    start = _STARTS[name]
     croc = sel(f"{_CROC} SolverDDP", exact=True)
     table = Table(
         f"oc-{name}", f"Optimal control: batched {name.replace('_', '-')} swing-ups, T = {T}",
         accuracy_label=f"final costs agreeing with Crocoddyl DDP (≤ {AGREE_RTOL:g} rel.)", description=(
-            f"`solvers.problems.{name}()` (explicit Euler, dt = {float(prob.args['dt']):g}, quadratic cost to the "
-            f"upright goal) from {big} seeded random starts ({start}), zero initial controls, ≤ {max_steps} "
-            "iterations, jaxanim default tolerances. jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` "
-            f"starts, adaptive (while_loop) and `fixed_steps=True` (a scan of {max_steps} iterations; finished "
-            "problems frozen). Crocoddyl: a Python loop of `solve` on Python action models with the same dynamics, "
-            "cost and analytic derivatives (first derivatives of the dynamics only: its SolverDDP is compared like "
-            "with like with jaxanim ilqr, while jaxanim ddp also uses second derivatives), timed on the first starts "
-            "within the row budget (µs / char = per problem; its success column counts only those). **Success**: "
-            f"solver status successful (Crocoddyl: `solve` returned True) and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. "
-            "Accuracy: of the problems both this row and Crocoddyl SolverDDP solved (status), how many final costs "
-            f"agree to {AGREE_RTOL:g} relative, and the median relative difference (different local optima are "
-            "possible). jaxanim notes: iterations mean / max, mean final cost, and the success rate on the starts "
-            "Crocoddyl SolverDDP ran."),
+            f"`solvers.problems.{name}()` (explicit Euler, dt = {float(prob.args['dt']):g}, quadratic cost to upright) "
+            f"from {big} seeded starts ({start}), zero controls, ≤ {max_steps} iterations, default tolerances. "
+            "jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` starts, adaptive and `fixed_steps=True` (a "
+            f"scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of `solve` on Python action "
+            "models with the same dynamics, cost and analytic first derivatives of the dynamics (like with like: "
+            "jaxanim ilqr; jaxanim ddp also uses second ones), on the first starts within the row budget (its "
+            f"success counts those only). **Success**: status successful and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. "
+            "Accuracy: of the problems both this row and Crocoddyl SolverDDP solved, how many final costs agree to "
+            f"{AGREE_RTOL:g} relative (median relative difference; local optima may differ). jaxanim notes: "
+            "iterations mean / max, mean cost, success on the starts Crocoddyl SolverDDP ran."),
         targets=[Target(f"batched DDP on {big} swing-ups ≥ 20x the Crocoddyl SolverDDP loop's throughput (jaxanim "
                         "ddp: second-order dynamics; Crocoddyl: first-order)", sel("jaxanim ddp", batch=big), 20.0,
                         versus=croc),
@@ -391,8 +356,6 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
     run = Runner(config, table)
 
     def croc_row(solver: str) -> Row:
-        from .peers import crocoddyl_oc as co
-
         pb = co.swing_up_problem(name, prob.args, x0s[0], T)
         s = co.make_solver(pb, solver)
         us0 = [np.zeros(prob.us_init.shape[1])] * T
@@ -456,7 +419,6 @@ def _swing_row(run: Runner, row: Row, ref: Row | None) -> Row:
     return row
 
 
-# --- 5. compile times ---------------------------------------------------------------------------------
 def _compile_table(tables: Sequence[Table]) -> Table:
     table = Table("oc-compile", "Optimal control: compile times (jaxanim)", accuracy_label="—", description=(
         "`jax.jit(f).lower(*args).compile()` of every jitted jaxanim row of the tables above, on a fresh `jax.jit` "
@@ -467,7 +429,6 @@ def _compile_table(tables: Sequence[Table]) -> Table:
         table.rows += [Row(f"{r.implementation} [{t.name.removeprefix('oc-')}]", r.dtype, r.batch,
                            compile_s=r.compile_s) for r in t.rows if r.measured and r.compile_s is not None]
     return table
-
 
 TABLES = ("unicycle", "lqr", "dare", "swing_up", "compile")
 

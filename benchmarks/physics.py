@@ -13,8 +13,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxanim import character, physics, read_bvh
+from jaxanim import rotations as rot
 
 from .peers import PeerUnavailable
+from .peers import mujoco_physics as mp
 from .report import Row, Table, Target, sel, usable_cores
 from .timing import Runner, Timing, status_counts
 
@@ -80,15 +83,11 @@ class StandingCharacter:
 
     def clearance(self, state) -> jax.Array:
         """The smallest signed distance of a contact point to the ground (m; negative: penetrating)."""
-        from jaxanim import rotations as rot
-
         b = self.contact_body
         return jnp.min(state.position[b, 1] + rot.quat_apply(state.orientation[b], self.contact_local)[:, 1]
                        - self.contact_radius)
 
     def mjcf(self, dt: float) -> str:
-        from jaxanim import character
-
         return character.export_mjcf(self.char, self.state, dt=dt, stiffness=KP, damping=KD)
 
     def batch_states(self, batch: int):
@@ -108,9 +107,6 @@ def root_velocities(batch: int) -> np.ndarray:
 @functools.lru_cache(maxsize=None)
 def standing_character(data_dir: pathlib.Path | str, contact_model: str = "complementarity") -> StandingCharacter:
     """The benchmark character (see the module docstring) with ``contact_model`` ground contact."""
-    from jaxanim import character, physics, read_bvh
-    from jaxanim import rotations as rot
-
     skel, motion = read_bvh(str(pathlib.Path(data_dir) / CLIP))[:2]
     name, _, cap = contact_model.partition(":")
     ground = physics.make_ground(name, max_points=int(cap) if cap else None, dtype=jnp.float64)
@@ -127,9 +123,6 @@ def standing_character(data_dir: pathlib.Path | str, contact_model: str = "compl
 def double_pendulum():
     """``(model, state)``: two capsules (radius 0.05 m, 0.4 m between cap centers) hanging from the
     origin by ball joints, released with the lower link out of the upper one's plane."""
-    from jaxanim import physics
-    from jaxanim import rotations as rot
-
     r, length = 0.05, 0.4
     half = length / 2 + r
     bodies = physics.make_bodies([("capsule", (r, length)), ("capsule", (r, length))], names=("upper", "lower"),
@@ -145,7 +138,6 @@ def double_pendulum():
     return physics.make_model(bodies, joints), state
 
 
-# --- 1. throughput -------------------------------------------------------------------------------------
 class _Sims:
     """MuJoCo models of the character per dt (grown to the largest batch asked) and reference positions."""
 
@@ -153,8 +145,6 @@ class _Sims:
         self.data_dir, self.sims, self.refs = data_dir, {}, {}
 
     def sim(self, dt: float, batch: int):
-        from .peers import mujoco_physics as mp
-
         if dt not in self.sims or self.sims[dt].batch < batch:
             ch = standing_character(self.data_dir, "complementarity")
             self.sims[dt] = mp.MujocoSim(ch.mjcf(dt), ch.char.model.bodies.names, ch.root, root_velocities(batch))
@@ -174,10 +164,6 @@ class _Sims:
 
 
 def _throughput_table(config, sz: PhysicsSizes) -> Table:
-    from jaxanim import physics
-
-    from .peers import mujoco_physics as mp
-
     batches = config.batches_for(sz.batches)
     mjx_batches = batches if sz.mjx_batches is None else tuple(sz.mjx_batches)
     n, nthread = sz.steps_per_call, usable_cores()
@@ -257,15 +243,12 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
     return table
 
 
-# --- 2. standing accuracy -----------------------------------------------------------------------------
 def _summary(ys: np.ndarray, y0: float, penetration: float, separation: float, total: int, wall: float) -> str:
     return (f"root y {y0:.4f} → {ys[-1]:.4f} m (change {ys.min() - y0:+.4f} / {ys.max() - y0:+.4f}), penetration "
             f"{max(-penetration, 0):.2e} m, joint separation {separation:.1e} m; {total} steps in {wall:.2f} s")
 
 
 def _standing_table(config, sz: PhysicsSizes) -> Table:
-    from jaxanim import physics
-
     secs = sz.stand_seconds
     table = Table(
         "physics-standing", f"Physics: standing character, {secs:g} s, accuracy",
@@ -287,8 +270,6 @@ def _standing_table(config, sz: PhysicsSizes) -> Table:
         return int(round(secs / dt)) // k * k, k
 
     def mj_row(dt: float, impl: str) -> Row:
-        from .peers import mujoco_physics as mp
-
         sim = mp.MujocoSim(ch0.mjcf(dt), ch0.char.model.bodies.names, ch0.root, np.zeros((1, 3)))
         total, k = steps(dt)
         d, ys, pen = sim.reset(0), [], 0.0
@@ -326,10 +307,7 @@ def _standing_table(config, sz: PhysicsSizes) -> Table:
     return table
 
 
-# --- 3. double pendulum -------------------------------------------------------------------------------
 def _pendulum_table(config, sz: PhysicsSizes) -> Table:
-    from jaxanim import physics
-
     secs = sz.pendulum_seconds
     table = Table(
         "physics-pendulum", f"Physics: double pendulum (2 capsules, ball joints), {secs:g} s, accuracy",
@@ -346,8 +324,6 @@ def _pendulum_table(config, sz: PhysicsSizes) -> Table:
 
     def mujoco_final(dt: float) -> np.ndarray:
         if dt not in cache:
-            from .peers import mujoco_physics as mp
-
             mujoco = mp.load_mujoco()
             m = mujoco.MjModel.from_xml_string(physics.to_mjcf(model, state, dt=dt))
             d = mujoco.MjData(m)
@@ -388,7 +364,6 @@ def _pendulum_table(config, sz: PhysicsSizes) -> Table:
         run.add(mj, "float64", 1, lambda: mj_row(dt, mj), peer=True)
         run.add(ja, "float64", 1, lambda: jax_row(dt, ja))
     return table
-
 
 TABLES = ("throughput", "standing", "pendulum")
 

@@ -87,7 +87,6 @@ class Table:
     run: str = ""
 
 
-# --- formatting -----------------------------------------------------------------------------------
 def utc_now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
 
@@ -209,7 +208,6 @@ def render_table(table: Table) -> str:
     return "\n".join(out)
 
 
-# --- environment ----------------------------------------------------------------------------------
 def _cpu_model() -> str:
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:

@@ -17,7 +17,11 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import numpy as np
 
+import solvers
+
+from .peers import PeerUnavailable
 from .report import Row, Table
 
 __all__ = ["CompileStats", "Runner", "Timing", "TimingStats", "compile_time", "sample_call", "time_call"]
@@ -37,7 +41,6 @@ class Timing:
     all: tuple[float, ...] = ()
 
     repeats = property(lambda self: self.samples)
-
 
 TimingStats = Timing
 
@@ -153,17 +156,13 @@ class Runner:
 
         A missing peer (``ImportError``, :class:`~benchmarks.peers.PeerUnavailable`) is one skipped row
         for the implementation; a failure is a ``failed:`` row, and later batches point to it."""
-        from .peers import PeerUnavailable
-
         if not self.config.selects(impl):
             return None
         key = (impl, dtype)
-        if key in self._failed or (impl, None) in self._failed:
-            why = self._failed.get(key, self._failed.get((impl, None)))
-            if why is None:  # the skipped row is already there
-                return None
-            row = Row(impl, dtype, batch, skipped=why, is_peer=peer)
-        elif (why := self._budget(impl, dtype, batch, max_batch)) is not None:
+        why = self._failed.get(key, self._failed.get((impl, None), ""))
+        if why is None:  # the skipped row is already there
+            return None
+        if why := why or self._budget(impl, dtype, batch, max_batch):
             row = Row(impl, dtype, batch, skipped=why, is_peer=peer)
         else:
             try:
@@ -184,8 +183,7 @@ class Runner:
     def _log(self, r: Row) -> None:
         head = f"{self.table.name} {r.dtype} B={r.batch}: {r.implementation}:"
         if not r.measured:
-            self.config.log(f"{head} {r.skipped}")
-            return
+            return self.config.log(f"{head} {r.skipped}")
         comp = "" if r.compile_s is None else f", compile {r.compile_s:.2f} s"
         succ = "" if r.success is None else f", success {100 * r.success:.1f} %"
         us = "" if r.us_per_char is None else f" {r.us_per_char:.4g} µs/char"
@@ -200,12 +198,7 @@ class Runner:
 
 def status_counts(result: Any, enumeration: Any = None) -> dict[str, int]:
     """Counts of each status but success in a (batched) solver ``result`` (``solvers.RESULTS`` by default)."""
-    import numpy as np
-
-    if enumeration is None:
-        import solvers
-
-        enumeration = solvers.RESULTS
+    enumeration = solvers.RESULTS if enumeration is None else enumeration
     counts = {name: int(np.sum(np.asarray(result == item))) for name, item in enumeration._name_to_item.items()
               if name != "successful"}
     return {k: v for k, v in counts.items() if v}

@@ -28,8 +28,6 @@ def load_crocoddyl():
         raise PeerUnavailable(f"crocoddyl {getattr(croc, '__version__', '?')} has no ActionModelAbstract")
     return croc
 
-
-# --- models ------------------------------------------------------------------------------------------
 _CLASSES: dict[str, type] = {}
 
 
@@ -191,8 +189,6 @@ def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
     return _shooting(croc, x0, cls(a), cls(a, terminal=True), T)
 
 
-# --- solving ------------------------------------------------------------------------------------------
 def make_solver(problem, solver: str = "SolverDDP"):
     """``crocoddyl.<solver>(problem)``."""
     return getattr(load_crocoddyl(), solver)(problem)
-

@@ -7,11 +7,14 @@ import contextlib
 import io
 from collections.abc import Callable, Sequence
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import PeerUnavailable, require
 
 __all__ = ["MujocoSim", "load_mjx", "load_mujoco", "mjx_rollout"]
+
 
 def load_mujoco():
     """The ``mujoco`` module, or :class:`PeerUnavailable`."""
@@ -103,9 +106,6 @@ def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple
     """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
     character over the first ``batch`` characters' initial states (cast to the dtypes ``mjx.step``
     returns: under x64 ``put_data`` makes int32 contact indices that ``step`` returns as int64)."""
-    import jax
-    import jax.numpy as jnp
-
     mjx = load_mjx()
     mujoco = sim.mujoco
     mx = mjx.put_model(sim.model)
