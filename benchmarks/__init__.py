@@ -1,14 +1,7 @@
 """Benchmarks of jaxanim against its peers: ``python -m benchmarks [NAME ...] [--quick]``.
 
-Each benchmark is a function ``run(config: BenchConfig) -> list[Table]`` in a module of this package;
-:data:`REGISTRY` maps the names accepted on the command line to those functions (imported lazily, so
-one benchmark's missing dependency never stops another): ``fk``, ``jacobian`` (:mod:`benchmarks.fk`),
-``ik`` (:mod:`benchmarks.ik`), ``oc`` (:mod:`benchmarks.oc`) and ``physics`` (:mod:`benchmarks.physics`). To add a
-benchmark, write ``benchmarks/<name>.py`` with such a function and add one :class:`BenchmarkSpec` line to
-:data:`REGISTRY`. Peers live in ``benchmarks/peers/`` and raise
-:class:`benchmarks.peers.PeerUnavailable` when they cannot be imported; the benchmark then reports
-them as ``skipped: <reason>`` rows.
-"""
+:data:`REGISTRY` maps the command-line names to ``run(config: BenchConfig) -> list[Table]`` functions, imported
+lazily so that one benchmark's missing dependency never stops another; missing peers are ``skipped`` rows."""
 
 from __future__ import annotations
 
@@ -18,9 +11,10 @@ import importlib
 import os
 import pathlib
 import sys
+import time
 from collections.abc import Callable, Sequence
 
-from .report import Row as Row, Table as Table
+from .report import Row as Row, Table as Table, utc_now
 
 __all__ = ["REGISTRY", "BenchConfig", "BenchmarkSpec", "Row", "Table", "default_data_dir", "run_benchmarks"]
 
@@ -35,22 +29,10 @@ def default_data_dir() -> pathlib.Path:
 
 @dataclasses.dataclass(frozen=True)
 class BenchConfig:
-    """Settings shared by every benchmark of one run.
-
-    Attributes:
-        quick: small batches and few repeats (for tests and smoke runs).
-        dtypes: the dtypes to run, ``"float32"`` and/or ``"float64"``.
-        batches: if set, overrides every benchmark's batch sizes.
-        repeats: timed samples per row (the median and min are reported).
-        warmup: untimed calls per row before sampling.
-        max_row_s: sampling budget per row; sampling stops early (after 3 samples) past it.
-        loop_cap: Python-loop peers (Pinocchio) run at most this many configurations per timed
-            call and report time per configuration.
-        data_dir: the shared data folder (``bvh/``, ``fk/``).
-        only: if set, run only the implementations whose name matches one of these shell-style
-            patterns (case-insensitive :func:`fnmatch.fnmatch`), e.g. ``("jaxanim*", "pinocchio*")``.
-        verbose: print progress to stderr.
-    """
+    """Settings shared by every benchmark of one run: ``quick`` (smoke test), the ``dtypes``, a
+    ``batches`` override, timed samples (``repeats``) after ``warmup`` calls within ``max_row_s`` per
+    row, the most configurations a Python-loop peer runs per timed call (``loop_cap``), the shared
+    data folder, ``only`` (case-insensitive shell patterns of implementations to run) and ``verbose``."""
 
     quick: bool = False
     dtypes: tuple[str, ...] = ("float32", "float64")
@@ -71,15 +53,21 @@ class BenchConfig:
         return cls(**kw)
 
     def batches_for(self, default: Sequence[int]) -> tuple[int, ...]:
-        """The batch sizes to run: the override if given, else ``default``."""
         return tuple(self.batches) if self.batches is not None else tuple(default)
 
     def selects(self, implementation: str) -> bool:
         """Whether ``implementation`` passes the ``only`` filter."""
-        if not self.only:
-            return True
-        name = implementation.lower()
-        return any(fnmatch.fnmatchcase(name, pattern.lower()) for pattern in self.only)
+        return not self.only or any(fnmatch.fnmatchcase(implementation.lower(), p.lower()) for p in self.only)
+
+    def data_file(self, name: str) -> pathlib.Path | str:
+        """The shared data file ``name``, or why it is missing."""
+        path = pathlib.Path(self.data_dir) / name
+        return path if path.is_file() else (f"{path} not found (the shared data sits beside the clone; set "
+                                            "JAXANIM_SHARED_DATA or --data-dir)")
+
+    def float64_only(self, name: str, why: str) -> None:
+        if "float64" not in self.dtypes:
+            self.log(f"{name}: runs in float64 only ({why}); --dtype is ignored")
 
     def log(self, msg: str) -> None:
         """Print a progress line to stderr (when ``verbose``)."""
@@ -89,64 +77,36 @@ class BenchConfig:
 
 @dataclasses.dataclass(frozen=True)
 class BenchmarkSpec:
-    """A registered benchmark.
-
-    Attributes:
-        name: the name used on the command line.
-        target: ``"module:function"`` of the ``run(config) -> list[Table]`` function.
-        description: one line for ``--help``.
-    """
+    """A registered benchmark: its command-line name, ``"module:function"`` of its
+    ``run(config) -> list[Table]`` and one line for ``--help``."""
 
     name: str
     target: str
     description: str
 
     def load(self) -> Callable[[BenchConfig], list[Table]]:
-        """Import and return the benchmark's run function."""
         module, _, func = self.target.partition(":")
         return getattr(importlib.import_module(module), func)
 
-
-REGISTRY: dict[str, BenchmarkSpec] = {
-    s.name: s
-    for s in (
-        BenchmarkSpec(
-            "fk", "benchmarks.fk:run_fk",
-            "forward kinematics, 31-joint CMU skeleton: jaxanim vs naive JAX, numpy, Pinocchio",
-        ),
-        BenchmarkSpec(
-            "jacobian", "benchmarks.fk:run_jacobian",
-            "6xN geometric Jacobian of 5 end effectors: jaxanim vs jacfwd, jacrev, Pinocchio",
-        ),
-        BenchmarkSpec(
-            "ik", "benchmarks.ik:run_ik",
-            "IK, 5 effectors (position + orientation), CMU skeleton: LM, optimistix, jaxopt, CCD, Pinocchio CLIK",
-        ),
-        BenchmarkSpec(
-            "oc", "benchmarks.oc:run_oc",
-            "optimal control: iLQR/DDP/LQR/DARE vs Crocoddyl and scipy (unicycle, LQ, DARE, swing-ups)",
-        ),
-        BenchmarkSpec(
-            "physics", "benchmarks.physics:run_physics",
-            "~20-body character standing under PD control: jaxanim (penalty, complementarity) vs MuJoCo C and MJX",
-        ),
-    )
-}
+REGISTRY: dict[str, BenchmarkSpec] = {s.name: s for s in (
+    BenchmarkSpec("fk", "benchmarks.fk:run_fk",
+                  "forward kinematics, 31-joint CMU skeleton: jaxanim vs naive JAX, numpy, Pinocchio"),
+    BenchmarkSpec("jacobian", "benchmarks.fk:run_jacobian",
+                  "6xN geometric Jacobian of 5 end effectors: jaxanim vs jacfwd, jacrev, Pinocchio"),
+    BenchmarkSpec("ik", "benchmarks.ik:run_ik",
+                  "IK, 5 effectors (position + orientation), CMU skeleton: LM, optimistix, jaxopt, CCD, "
+                  "Pinocchio CLIK"),
+    BenchmarkSpec("oc", "benchmarks.oc:run_oc",
+                  "optimal control: iLQR/DDP/LQR/DARE vs Crocoddyl and scipy (unicycle, LQ, DARE, swing-ups)"),
+    BenchmarkSpec("physics", "benchmarks.physics:run_physics",
+                  "~20-body character standing under PD control: jaxanim (penalty, complementarity) vs MuJoCo C "
+                  "and MJX"),
+)}
 
 
-def run_benchmarks(names: Sequence[str], config: BenchConfig) -> list[Table]:
-    """Run the named benchmarks in order and collect their tables.
-
-    Args:
-        names: registered names (see :data:`REGISTRY`); an empty sequence runs all of them.
-        config: the shared settings.
-
-    Returns:
-        Every benchmark's tables, in order.
-
-    Raises:
-        KeyError: an unknown name (the message lists the valid ones).
-    """
+def run_benchmarks(names: Sequence[str], config: BenchConfig, command: str = "python -m benchmarks") -> list[Table]:
+    """Run the named benchmarks (all if empty) in order; every table records how it was measured.
+    An unknown name raises ``KeyError`` listing the valid ones."""
     names = list(names) or list(REGISTRY)
     unknown = [n for n in names if n not in REGISTRY]
     if unknown:
@@ -154,5 +114,17 @@ def run_benchmarks(names: Sequence[str], config: BenchConfig) -> list[Table]:
     tables: list[Table] = []
     for n in names:
         config.log(f"== {n}: {REGISTRY[n].description}")
-        tables.extend(REGISTRY[n].load()(config))
+        load0, start = _load(), time.perf_counter()
+        new = REGISTRY[n].load()(config)
+        run = (f"*Measured by `{command}` (benchmark `{n}`, {'quick' if config.quick else 'full'} mode), finished "
+               f"{utc_now()}, in {time.perf_counter() - start:.0f} s; 1-minute load average {load0} at its start and "
+               f"{_load()} at its end on {os.cpu_count()} logical cores (above the core count, other processes "
+               "shared the CPU and inflated every time).*")
+        for t in new:
+            t.run = run
+        tables.extend(new)
     return tables
+
+
+def _load() -> str:
+    return f"{os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else "n/a"

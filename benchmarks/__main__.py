@@ -1,9 +1,6 @@
-"""Command line: ``python -m benchmarks [NAME ...] [--quick] [--dtype ...] [--out BENCHMARKS.md]``.
-
-Runs the named benchmarks (default: all registered) in this process and writes the markdown report.
-Progress goes to stderr. float64 needs x64, which is switched on before anything else touches JAX;
-every benchmark gives its arrays explicit dtypes, so float32 rows stay float32.
-"""
+"""Command line: ``python -m benchmarks [NAME ...] [--quick] [--dtype ...] [--out BENCHMARKS.md]``: runs the
+benchmarks in this process and writes the report (progress on stderr). x64 is switched on before anything
+else touches JAX; every benchmark gives its arrays explicit dtypes, so float32 rows stay float32."""
 
 from __future__ import annotations
 
@@ -24,27 +21,19 @@ def _parser() -> argparse.ArgumentParser:
         epilog=f"registered benchmarks:\n{names}",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all registered)")
-    p.add_argument("--quick", action="store_true", help="batches 1 and 8, 3 repeats, loops capped at 8: a smoke test")
-    p.add_argument("--dtype", choices=("float32", "float64", "both"), default="both", help="default: both")
-    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("BENCHMARKS.md"), help="default: BENCHMARKS.md")
-    p.add_argument(
-        "--batches", type=str, default=None, help="comma-separated batch sizes, overriding every benchmark's"
-    )
-    p.add_argument("--repeats", type=int, default=None, help="timed samples per row (default 7, quick 3)")
-    p.add_argument("--warmup", type=int, default=None, help="untimed calls per row (default 2, quick 1)")
-    p.add_argument(
-        "--loop-cap", type=int, default=None, help="max configurations per timed Python-loop call (default 2048)"
-    )
-    p.add_argument(
-        "--only", type=str, default=None,
-        help="comma-separated shell patterns: run only the implementations whose name matches one, "
-        "case-insensitive (e.g. 'jaxanim*,pinocchio*')",
-    )
-    p.add_argument(
-        "--data-dir", type=pathlib.Path, default=None, help=f"shared data folder (default {default_data_dir()})"
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    arg = p.add_argument
+    arg("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all registered)")
+    arg("--quick", action="store_true", help="batches 1 and 8, 3 repeats, loops capped at 8: a smoke test")
+    arg("--dtype", choices=("float32", "float64", "both"), default="both", help="default: both")
+    arg("--out", type=pathlib.Path, default=pathlib.Path("BENCHMARKS.md"), help="default: BENCHMARKS.md")
+    arg("--batches", type=str, default=None, help="comma-separated batch sizes, overriding every benchmark's")
+    arg("--repeats", type=int, default=None, help="timed samples per row (default 7, quick 3)")
+    arg("--warmup", type=int, default=None, help="untimed calls per row (default 2, quick 1)")
+    arg("--loop-cap", type=int, default=None, help="max configurations per timed Python-loop call (default 2048)")
+    arg("--only", type=str, default=None, help="comma-separated shell patterns: run only the implementations whose "
+        "name matches one, case-insensitive (e.g. 'jaxanim*,pinocchio*')")
+    arg("--data-dir", type=pathlib.Path, default=None, help=f"shared data folder (default {default_data_dir()})")
+    arg("--quiet", action="store_true", help="no progress on stderr")
     return p
 
 
@@ -60,16 +49,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     jax.config.update("jax_enable_x64", True)  # float64 rows and references; float32 rows are explicit
 
-    kw: dict = {}
+    kw = {k: v for k in ("repeats", "warmup", "loop_cap", "data_dir") if (v := getattr(args, k)) is not None}
+    kw.update(dtypes=("float32", "float64") if args.dtype == "both" else (args.dtype,), verbose=not args.quiet)
     if args.batches:
         kw["batches"] = tuple(int(b) for b in args.batches.split(","))
     if args.only:
         kw["only"] = tuple(x.strip() for x in args.only.split(",") if x.strip())
-    for key in ("repeats", "warmup", "loop_cap", "data_dir"):
-        if getattr(args, key) is not None:
-            kw[key] = getattr(args, key)
-    kw["dtypes"] = ("float32", "float64") if args.dtype == "both" else (args.dtype,)
-    kw["verbose"] = not args.quiet
     config = BenchConfig.make_quick(**kw) if args.quick else BenchConfig(**kw)
 
     env = collect_environment()
@@ -85,7 +70,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if config.only:
         settings["implementations"] = "only those matching " + ", ".join(config.only)
     config.log(f"running {args.names or list(REGISTRY)} ({settings['mode']}), report -> {args.out}")
-    tables = run_benchmarks(args.names, config)
+    tables = run_benchmarks(args.names, config, command)
     args.out.write_text(render_report(env, command, settings, tables), encoding="utf-8")
     config.log(f"wrote {args.out}")
     return 0

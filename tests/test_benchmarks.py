@@ -195,8 +195,8 @@ def test_ik_problems_are_reachable_and_evaluated_independently():
 
     try:
         pin = pinocchio_clik.build_model(skel)
-    except PeerUnavailable:  # Pinocchio is not installed: the evaluator checks above still ran
-        return
+    except PeerUnavailable as exc:  # the evaluator checks above ran
+        pytest.skip(f"Pinocchio CLIK part: {exc}")
     q0s = pinocchio_clik.start_configurations(np.asarray(q[:3], np.float64), np.asarray(t[:3, 0], np.float64))
     fids = [pin.frame_ids[s] for s in ps.sites]
     qs, its = pinocchio_clik.clik_loop(
@@ -228,8 +228,9 @@ def test_quick_ik_report(tmp_path):
         row = _row(rows, impl, "float64", 8)
         assert row[7] == "100.0 %", f"success of {impl}: {row}"
         p98_pos, p98_ori = (float(x) for x in row[6].split(" / "))
-        # well inside the success thresholds (1e-3 x height = 0.026 units, 0.01 rad)
-        assert p98_pos < 1e-3 and p98_ori < 1e-3, f"p98 errors of {impl}: {row[6]}"
+        # LM stops at rtol 1e-8 on the cost: p98 errors ~3e-5 (units / rad), far inside the success
+        # thresholds (1e-3 x height = 0.026 units, 0.01 rad)
+        assert p98_pos < 1e-4 and p98_ori < 1e-4, f"p98 errors of {impl}: {row[6]}"
         assert row[5].endswith("s") and float(row[4]) > 0, row
         assert row[9].startswith("iterations "), row[9]
     assert not [r for r in rows if r[0].startswith(("optimistix", "jaxopt", "jaxanim CCD", bench_ik._LM_FIXED))], (
@@ -241,4 +242,5 @@ def test_quick_ik_report(tmp_path):
         assert any(r[0] == bench_ik._PIN and r[3].startswith("skipped:") for r in rows)
     else:
         assert _row(rows, bench_ik._PIN, "float64", 8)[7] == "100.0 %"
-    assert "Target: ≥ 99.5 % success" in text and "Profile, own LM at batch 8" in text
+    assert "Target: ≥ 99.5 % success at batch 8 in float32 and float64 (own LM): worst jaxanim LM (adaptive)" in text
+    assert "Iterations the adaptive LM took to converge" in text and "*Measured by `python -m benchmarks ik" in text

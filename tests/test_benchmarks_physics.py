@@ -50,14 +50,18 @@ def test_reduced_run(monkeypatch):
     assert rows[("MuJoCo C rollout.rollout", 2)].accuracy < 1e-12  # the same C code
     own = rows[("jaxanim rollout (complementarity)", 2)]
     assert own.success == 1.0 and own.compile_s > 0 and own.time_median_s > 0
-    assert own.accuracy < 1e-2, own.accuracy  # two steps from rest: m
+    # two steps of 1/600 s move a body by at most |v| 2 dt + g (2 dt)^2 / 2 = 0.07 * 3.3e-3 + 5.4e-5 ~ 2.9e-4 m
+    # (root speed <= 0.07 m/s); the two contact and PD models may differ by about that, not more (measured 1.5e-4)
+    assert own.accuracy < 3e-4, own.accuracy
     assert rows[("MJX jit(vmap(scan(mjx.step)))", None)].skipped.startswith("cannot import mujoco.mjx")
-    assert any(n.startswith("Target: rollout compile") for n in table.notes)
-    assert any("mujoco" in n for n in table.notes)
+    text = render_table(table)
+    assert "- Target: rollout compile ≤ 5 s (jaxanim rows): worst jaxanim rollout (complementarity)" in text
+    assert "- Target: ≤ 35 µs per character-step at batch 1024: not measured in this run." in text
 
     _, pend = bench_rows(tables, "physics-pendulum")
     mj, ja = pend[("MuJoCo C mj_step (dt 1/600)", 1)], pend[("jaxanim rollout (dt 1/600)", 1)]
-    assert mj.accuracy < 1e-3 and ja.accuracy < 1e-3 and ja.success == 1.0
+    # both are first order: ~2.6e-4 m from the dt 1/19200 reference after 0.05 s, and 5e-6 m apart
+    assert mj.accuracy < 5e-4 and ja.accuracy < 5e-4 and ja.success == 1.0
     assert "joint separation" in ja.note
 
 

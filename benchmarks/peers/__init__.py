@@ -1,9 +1,5 @@
-"""Adapters that run the benchmark problems in other libraries (or plain numpy).
-
-Each adapter imports its library lazily, through :func:`require`, so that a missing peer raises
-:class:`PeerUnavailable` with a readable reason; the benchmark catches it and reports the peer as a
-``skipped: <reason>`` row instead of failing.
-"""
+"""Adapters that run the benchmark problems in other libraries (or plain numpy); a missing library raises
+:class:`PeerUnavailable` (through :func:`require`), which the benchmark reports as a ``skipped`` row."""
 
 from __future__ import annotations
 
@@ -18,18 +14,7 @@ class PeerUnavailable(RuntimeError):
 
 
 def require(module: str, install_hint: str | None = None) -> ModuleType:
-    """Import ``module`` or raise :class:`PeerUnavailable`.
-
-    Args:
-        module: the importable name, e.g. ``"pinocchio"``.
-        install_hint: what to install, e.g. ``"pip install pin==4.0.0"``; appended to the reason.
-
-    Returns:
-        The imported module.
-
-    Raises:
-        PeerUnavailable: the import failed (any ``ImportError``, including a broken install).
-    """
+    """Import ``module`` or raise :class:`PeerUnavailable` (any ``ImportError``), with ``install_hint``."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:

@@ -1,40 +1,24 @@
-"""MuJoCo (C) and MJX as the peers of the ``physics`` benchmark, on jaxanim's exported MJCF.
-
-The model is :func:`jaxanim.character.export_mjcf` (or :func:`jaxanim.physics.to_mjcf`): one
-MuJoCo body per jaxanim body, its frame at the body's centre of mass (``inertial pos="0 0 0"``), so
-``xpos`` of a body equals jaxanim's ``BodyState.position``; a ``freejoint`` on the root, whose
-``qvel[0:3]`` is the root's centre-of-mass velocity in world axes (the same as jaxanim's
-``linear_velocity``). Three ways to step it:
-
-* :meth:`MujocoSim.step_loop`: a Python loop of ``mujoco.mj_step`` over ``B`` ``MjData`` (one per
-  character), each reset to its initial state first, so every timed call does the same work;
-* :meth:`MujocoSim.rollout`: ``mujoco.rollout.rollout`` (C++ thread pool, ``nthread`` ``MjData``,
-  ``persistent_pool=True``: without it every call builds a pool, ~1 ms), no Python per step;
-* :func:`mjx_rollout`: MJX, ``jax.jit(jax.vmap(scan of mjx.step))``.
-
-Every function imports MuJoCo through :func:`load_mujoco` / :func:`load_mjx`, which raise
-:class:`benchmarks.peers.PeerUnavailable` when they are missing.
-"""
+"""MuJoCo (C) and MJX as the peers of the ``physics`` benchmark, on jaxanim's exported MJCF (one MuJoCo body
+per jaxanim body, framed at its center of mass, so ``xpos`` is ``BodyState.position``; a free joint on the root)."""
 
 from __future__ import annotations
 
 import contextlib
 import io
-import os
 from collections.abc import Callable, Sequence
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import PeerUnavailable, require
 
-__all__ = ["MujocoSim", "load_mjx", "load_mujoco", "mjx_rollout", "mjx_version"]
-
-_HINT = "pip install mujoco"
+__all__ = ["MujocoSim", "load_mjx", "load_mujoco", "mjx_rollout"]
 
 
 def load_mujoco():
     """The ``mujoco`` module, or :class:`PeerUnavailable`."""
-    return require("mujoco", _HINT)
+    return require("mujoco", "pip install mujoco")
 
 
 def load_mjx():
@@ -49,25 +33,10 @@ def load_mjx():
     return mjx
 
 
-def mjx_version() -> str:
-    import importlib.metadata
-
-    try:
-        return importlib.metadata.version("mujoco-mjx")
-    except importlib.metadata.PackageNotFoundError:
-        return "not installed"
-
-
 class MujocoSim:
-    """A MuJoCo model of a jaxanim model and ``B`` characters' initial states.
-
-    Args:
-        xml: the MJCF text.
-        body_names: jaxanim's body names, in jaxanim's order (positions are returned in it).
-        root: the jaxanim index of the free body.
-        root_velocities: ``[B, 3]`` initial root linear velocities (world, m/s), one per character;
-            everything else starts at the assembly pose, at rest.
-    """
+    """A MuJoCo model (``xml``) of a jaxanim model and ``B`` characters' initial states: the assembly
+    pose at rest but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions
+    are returned in jaxanim's ``body_names`` order."""
 
     def __init__(self, xml: str, body_names: Sequence[str], root: int, root_velocities: np.ndarray):
         mujoco = load_mujoco()
@@ -121,37 +90,22 @@ class MujocoSim:
         state, _ = mj_rollout.rollout(self.model, pool, init, nstep=nstep, persistent_pool=True)
         return state
 
-    def positions_from_state(self, state: np.ndarray) -> np.ndarray:
-        """Body positions (jaxanim order, ``[nb, 3]``) of a full-physics state vector."""
-        d = self.mujoco.MjData(self.model)
-        self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
-        self.mujoco.mj_kinematics(self.model, d)
-        return d.xpos[self.ids].copy()
-
-    def positions(self, i: int = 0) -> np.ndarray:
-        """Character ``i``'s current body positions (jaxanim order, ``[nb, 3]``)."""
-        d = self.datas[i]
-        self.mujoco.mj_kinematics(self.model, d)
-        return d.xpos[self.ids].copy()
-
-    def positions_from_qpos(self, qpos: np.ndarray) -> np.ndarray:
-        """Body positions (jaxanim order) at ``qpos`` (e.g. MJX's result)."""
-        d = self.mujoco.MjData(self.model)
-        d.qpos[:] = qpos
+    def positions(self, i: int = 0, *, state: np.ndarray | None = None, qpos: np.ndarray | None = None) -> np.ndarray:
+        """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, or of a full-physics
+        ``state`` vector, or at ``qpos`` (e.g. MJX's result)."""
+        d = self.datas[i] if state is None and qpos is None else self.mujoco.MjData(self.model)
+        if state is not None:
+            self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
+        if qpos is not None:
+            d.qpos[:] = qpos
         self.mujoco.mj_kinematics(self.model, d)
         return d.xpos[self.ids].copy()
 
 
 def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple]:
-    """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan``
-    per character, vmapped over the first ``batch`` characters' initial states.
-
-    The initial ``mjx.Data`` is cast to the dtypes ``mjx.step`` returns (under x64, ``put_data``
-    makes int32 contact indices that ``step`` returns as int64, which ``lax.scan`` refuses).
-    """
-    import jax
-    import jax.numpy as jnp
-
+    """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
+    character over the first ``batch`` characters' initial states (cast to the dtypes ``mjx.step``
+    returns: under x64 ``put_data`` makes int32 contact indices that ``step`` returns as int64)."""
     mjx = load_mjx()
     mujoco = sim.mujoco
     mx = mjx.put_model(sim.model)
@@ -168,11 +122,3 @@ def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple
         return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), d, None, length=nstep)[0].qpos
 
     return jax.jit(jax.vmap(one)), (dx,)
-
-
-def cpu_threads() -> int:
-    """Cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
