@@ -1,6 +1,6 @@
 r"""Nonlinear least squares: Gauss-Newton, Levenberg-Marquardt, gradient descent; optimistix/jaxopt adapters.
 
-Every solver minimises
+Every solver minimizes
 
 .. math::  F(y) = \tfrac12 \lVert r(y) \rVert^2, \qquad r: \mathbb{R}^n \to \mathbb{R}^m,
            \quad \text{optionally subject to } \ell \le y \le u,

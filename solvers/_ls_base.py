@@ -66,7 +66,7 @@ def _cauchy_step(
     r"""Buss's Jacobian-transpose step ``p = -alpha g``, ``alpha = |g|^2 / |J g|^2``.
 
     ``g`` is the gradient with frozen variables already zeroed and ``g_norm = |g|_inf``. ``alpha``
-    minimises the model ``g^T s + 0.5 |J s|^2`` along ``s = -alpha g`` (the Cauchy step). It does
+    minimizes the model ``g^T s + 0.5 |J s|^2`` along ``s = -alpha g`` (the Cauchy step). It does
     not depend on the scale of ``g``, so it is computed from ``g / |g|_inf``, which cannot overflow.
     The step is 0 when ``g = 0``, and non-finite only when ``J g`` underflows while ``g`` does not.
     """

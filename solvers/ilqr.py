@@ -8,7 +8,7 @@ Both solvers minimize, over the controls ``u_0..u_{T-1}`` (single shooting from 
 with user callbacks ``dynamics(x, u, t, args) -> x_next``, ``cost(x, u, t, args) -> scalar`` and
 ``terminal_cost(x, args) -> scalar``. Every iteration
 
-1. **linearises** the dynamics (``A_t = f_x``, ``B_t = f_u``) and **quadratises** the cost
+1. **linearizes** the dynamics (``A_t = f_x``, ``B_t = f_u``) and **quadratises** the cost
    (``l_x, l_u, l_xx, l_uu, l_ux``) along the nominal trajectory with ``jax.jacfwd`` /
    ``jax.hessian``, ``vmap``-ed over time;
 2. runs the **backward pass** (``lax.scan``) on the value function ``V_t(x_t + dx) ~ V + V_x dx +

@@ -99,7 +99,7 @@ def lqr(
 ) -> LQRSolution:
     r"""Solve a finite-horizon, time-varying LQ problem with cross and affine terms.
 
-    Minimises ``sum_{t<T} [0.5 x_t'Q_t x_t + 0.5 u_t'R_t u_t + u_t'S_t x_t + q_t'x_t + r_t'u_t]
+    Minimizes ``sum_{t<T} [0.5 x_t'Q_t x_t + 0.5 u_t'R_t u_t + u_t'S_t x_t + q_t'x_t + r_t'u_t]
     + 0.5 x_T'QT x_T + qT'x_T`` subject to ``x_{t+1} = A_t x_t + B_t u_t + c_t`` from ``x0``, by the
     backward Riccati recursion of the module docstring (``lax.scan``, one Cholesky factorization
     of ``Q_uu = R_t + B_t'P_{t+1}B_t`` per step) and a forward rollout of the policy

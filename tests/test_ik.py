@@ -100,7 +100,7 @@ def test_pin_frozen_and_vmap_equals_loop():
     goals = [base.end_site_positions[1] + jnp.asarray(d) for d in ([0.1, 0, 0.05], [0, -0.1, 0.1], [0.05, 0.05, -0.1])]
 
     def solve(goal):
-        # solved to the (unique, regularised) optimum, so vmap and the loop agree to rounding
+        # solved to the (unique, regularized) optimum, so vmap and the loop agree to rounding
         return ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, pin="head_End", frozen=("leg",),
                            regularization=1e-3, stop_at_tolerance=False)
 
@@ -193,7 +193,7 @@ def test_games105_wrist_holding_over_the_clip():
 
 
 def test_ik_matches_scipy_least_squares():
-    """The same IK residual minimised by scipy (an independent solver) gives the same optimum."""
+    """The same IK residual minimized by scipy (an independent solver) gives the same optimum."""
     from scipy.optimize import least_squares as scipy_ls
 
     skel = small_skeleton()
@@ -287,7 +287,7 @@ def test_cli_ik_writes_edited_bvh(tmp_path):
 
 def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
     """The default stops at the first iterate that meets every target's tolerance; without it the
-    weakly regularised problem is solved to the solver's tolerances (many more steps)."""
+    weakly regularized problem is solved to the solver's tolerances (many more steps)."""
     skel = small_skeleton()
     q, t = random_pose(skel, 11)
     goal_q, goal_t = random_pose(skel, 12)

@@ -179,7 +179,7 @@ def test_multi_target_cost_decreases_and_errors_end_small():
     n = int(sol.stats["num_steps"])
     G = np.asarray(sol.stats["ccd_cost_history"])[: n + 1]
     cost = np.asarray(sol.stats["cost_history"])[: n + 1]
-    # the sweep objective never increases (each block step is its exact minimiser) ...
+    # the sweep objective never increases (each block step is its exact minimizer) ...
     assert np.all(np.diff(G) <= 1e-13 * G[0]), np.diff(G).max()
     # ... and the reported cost goes from O(1) to nearly nothing
     assert cost[0] > 1e-2 and cost[-1] < 1e-7 * cost[0], (cost[0], cost[-1])

@@ -2,7 +2,7 @@
 
 References: ``../shared/data/lqr/lqr_refs.json`` (scipy, cross-checked against SLICOT), a dense KKT
 solve in numpy of the same finite-horizon problem (cross and affine terms included),
-``scipy.linalg.solve_discrete_are`` / ``solve_continuous_are`` on random stabilisable systems,
+``scipy.linalg.solve_discrete_are`` / ``solve_continuous_are`` on random stabilizable systems,
 and central finite differences for the implicit derivatives.
 """
 
@@ -55,7 +55,7 @@ def _ref_case(name: str) -> dict:
 
 
 def random_system(seed: int, n: int, m: int, *, cross: bool = False, radius: float = 1.1, continuous=False):
-    """A random stabilisable (generic B) system with some unstable modes and a PD joint cost.
+    """A random stabilizable (generic B) system with some unstable modes and a PD joint cost.
 
     ``[[Q, S'], [S, R]]`` is positive definite, so ``Q - S' R^-1 S`` is too (detectability).
     """
@@ -275,7 +275,7 @@ def test_care_vmap_equals_loop():
 # ---------------------------------------------------------------------------------------------
 
 
-def _unstabilisable_batch(continuous: bool):
+def _unstabilizable_batch(continuous: bool):
     """Three 3-state, 1-input systems; the middle one has an unstable mode that B cannot reach."""
     lam = 0.6 if continuous else 1.5
     A_bad = np.diag([lam, -1.0 if continuous else 0.5, -2.0 if continuous else 0.3])
@@ -291,15 +291,15 @@ def _unstabilisable_batch(continuous: bool):
 
 
 @pytest.mark.parametrize("continuous", [False, True])
-def test_unstabilisable_gives_status_under_vmap(continuous):
-    A, B, Q, R = _unstabilisable_batch(continuous)
+def test_unstabilizable_gives_status_under_vmap(continuous):
+    A, B, Q, R = _unstabilizable_batch(continuous)
     solve = care if continuous else dare
     batch = jax.vmap(solve)(A, B, Q, R)
     assert list(np.asarray(batch.result == RESULTS.successful)) == [True, False, True]
     assert np.asarray(batch.result == RESULTS.no_stabilising_solution)[1], "result[1]"
     assert np.all(np.isfinite(np.asarray(batch.P[0]))) and np.all(np.isfinite(np.asarray(batch.P[2])))
     # an unstable mode that neither B reaches nor Q weights: P = 0 there solves the equation but
-    # does not stabilise; still a failure
+    # does not stabilize; still a failure
     Q0 = np.diag([0.0, 1.0, 1.0])
     assert solve(A[1], B[1], Q0, R[1]).result != RESULTS.successful
     if not continuous:  # (one throw test is enough: it compiles another function)

@@ -66,7 +66,7 @@ def test_box_ddp_pendulum_pumps_within_bounds():
 
 
 def _servo_dense_solution(T, h, kp, kd, w, x0):
-    """Minimise the notes' eq. 7.7 directly: simulate the update equations for unit controls
+    """Minimize the notes' eq. 7.7 directly: simulate the update equations for unit controls
     (the problem is linear in the controls) and solve the least-squares problem with numpy."""
 
     def simulate(xbar):

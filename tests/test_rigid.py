@@ -19,7 +19,7 @@ _RTOL_MOMENTUM = 1e-6  # acceptance: |L(t) - L(0)| / |L(0)| over 10 s
 
 
 def _grid_inertia(inside, half_extent, n=128):
-    """Mass-normalised inertia of the set ``inside(p)`` by the midpoint rule on a grid."""
+    """Mass-normalized inertia of the set ``inside(p)`` by the midpoint rule on a grid."""
     ax = (np.arange(n) + 0.5) / n * 2 - 1
     ax = [a * h for a, h in zip(np.broadcast_to(ax, (3, n)), half_extent)]
     X, Y, Z = np.meshgrid(*ax, indexing="ij")

@@ -88,7 +88,7 @@ class _SimRun:
 
 
 def _sim_status(result) -> tuple[str, str]:
-    from ..physics._model import SimResult
+    from ..physics import SimResult
 
     for name in ("successful", "nonfinite", "exploded"):
         if bool(result == getattr(SimResult, name)):
@@ -99,10 +99,7 @@ def _sim_status(result) -> tuple[str, str]:
 def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) -> _SimRun:
     """Build the character, compile the rollout and the pose / CoM / error maps, run them."""
     from .. import character
-    from ..physics._contact import make_ground
-    from ..character._balance import center_of_mass
-    from ..character._pd import joint_errors
-    from ..physics._model import rollout
+    from ..physics import bodies_center_of_mass, joint_errors, make_ground, rollout
 
     reference = _looped_motion(clip.motion, plan.frames)
     ui.progress(f"building the character ({args.contact} contact) and the controller")
@@ -126,7 +123,7 @@ def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) ->
             reference.rotations, reference.translations)
         err = jax.vmap(lambda s, tg: jnp.mean(jnp.linalg.norm(joint_errors(char.model.joints, s, tg)[0], axis=-1)))(
             traj, targets)
-        com_y = jax.vmap(lambda s: center_of_mass(char.model.bodies, s)[0][1])(traj)
+        com_y = jax.vmap(lambda s: bodies_center_of_mass(char.model.bodies, s)[0][1])(traj)
         return q, t, com_y, err, run.result, run.num_steps
 
     call_args = (state0, gains, reference)

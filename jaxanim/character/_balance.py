@@ -341,6 +341,42 @@ def _heights(character: Character, state: BodyState) -> tuple[np.ndarray, np.nda
     return body, np.asarray(phi)
 
 
+def _ankles(skel, ankle_names, exclude_names) -> tuple[list[int], np.ndarray]:
+    """The ankle joints (by name) and, per joint, the ankle it hangs below (-1: above the ankles)."""
+    ankles = [j for j, n in enumerate(skel.names)
+              if any(s in n for s in ankle_names) and not any(s in n for s in exclude_names)]
+    if not ankles:
+        raise JaxanimError(f"ankle_names: no skeleton joint name contains any of {tuple(ankle_names)!r}; joints are "
+                           f"{skel.names!r}")
+    below = np.zeros(skel.num_joints, int) - 1
+    for j in range(skel.num_joints):
+        a = j
+        while a >= 0 and a not in ankles:
+            a = skel.parents[a]
+        below[j] = a
+    return ankles, below
+
+
+def _flat_feet(character: Character, R0: np.ndarray, below: np.ndarray, up: np.ndarray, foot_names) -> dict:
+    """Per foot body's joint, the world rotation that lays its box (length along body z, width along
+    body x) flat, keeping the box's own up side up."""
+    skel = character.skeleton
+    index = {j: b for b, j in enumerate(character.body_joint)}
+    flat = {}
+    for j in range(skel.num_joints):
+        if not (below[j] >= 0 and j in index and any(s in skel.names[j] for s in foot_names)):
+            continue
+        Rb = R0[j] @ np.asarray(rot.quat_to_matrix(character.body_rotation[index[j]]))
+        z = Rb[:, 2] - (Rb[:, 2] @ up) * up
+        z /= np.linalg.norm(z)
+        x = np.cross(up, z)
+        target = np.stack([x, up, z], axis=1)
+        if Rb[:, 1] @ up < 0:  # a half turn about z otherwise
+            target = np.stack([-x, -up, z], axis=1)
+        flat[j] = target @ Rb.T
+    return flat
+
+
 def standing_pose(
     character: Character,
     rotations: Float[ArrayLike, "joints 4"],
@@ -386,31 +422,8 @@ def standing_pose(
     fk = forward_kinematics(skel, q, t)
     R0 = np.asarray(fk.rotations, float)
     P0 = np.asarray(fk.positions, float) * character.unit
-    ankles = [j for j, n in enumerate(skel.names)
-              if any(s in n for s in ankle_names) and not any(s in n for s in exclude_names)]
-    if not ankles:
-        raise JaxanimError(f"ankle_names: no skeleton joint name contains any of {tuple(ankle_names)!r}; joints are "
-                           f"{skel.names!r}")
-    below = np.zeros(J, int) - 1  # the ankle each joint hangs below (-1: above the ankles)
-    for j in range(J):
-        a = j
-        while a >= 0 and a not in ankles:
-            a = skel.parents[a]
-        below[j] = a
-    # (1) Flat feet: each foot body (box length along body z, width along body x) turned flat.
-    index = {j: b for b, j in enumerate(character.body_joint)}
-    foot_body = [j for j in range(J) if below[j] >= 0 and j in index
-                 and any(s in skel.names[j] for s in foot_names)]
-    flat = {}
-    for j in foot_body:
-        Rb = R0[j] @ np.asarray(rot.quat_to_matrix(character.body_rotation[index[j]]))
-        z = Rb[:, 2] - (Rb[:, 2] @ up) * up
-        z /= np.linalg.norm(z)
-        x = np.cross(up, z)
-        target = np.stack([x, up, z], axis=1)
-        if Rb[:, 1] @ up < 0:  # keep the box's own up side up (a half turn about z otherwise)
-            target = np.stack([-x, -up, z], axis=1)
-        flat[j] = target @ Rb.T
+    ankles, below = _ankles(skel, ankle_names, exclude_names)
+    flat = _flat_feet(character, R0, below, up, foot_names)  # (1) flat feet
 
     def pose(rotvec: np.ndarray):
         pivot = np.mean(P0[ankles], axis=0)

@@ -346,7 +346,7 @@ def _bmm(a: Array, b: Array) -> Array:
 
 def _spd_inverse(A):
     """Inverse of symmetric positive definite matrices ``[..., k, k]``, written out as array
-    arithmetic (vectorised over the leading axes, no LAPACK call per matrix): closed forms for
+    arithmetic (vectorized over the leading axes, no LAPACK call per matrix): closed forms for
     ``k <= 3`` (adjugate over determinant), otherwise a 2 x 2 block inverse with the Schur
     complement ``D - C A^{-1} B`` (symmetric positive definite again, so no pivoting is needed)."""
     k = A.shape[-1]

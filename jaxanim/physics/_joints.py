@@ -178,38 +178,8 @@ def make_joints(bodies: RigidBodies, state: BodyState, specs: Sequence[dict]) ->
         Rp = np.eye(3) if p < 0 else R[p]
         xp = np.zeros(3) if p < 0 else x[p]
         qp = np.array([1.0, 0.0, 0.0, 0.0]) if p < 0 else q[p]
-        axis = axis2 = np.array([1.0, 0.0, 0.0])
-        if kind in ("hinge", "universal"):
-            if "axis" not in spec:
-                raise JaxanimError(f"specs[{i}].axis: missing (a {kind} joint needs one)")
-            axis = _unit(f"specs[{i}].axis", spec["axis"])
-            axis2 = axis
-        if kind == "universal":
-            if "axis2" not in spec:
-                raise JaxanimError(f"specs[{i}].axis2: missing (a universal joint needs two axes)")
-            axis2 = _unit(f"specs[{i}].axis2", spec["axis2"])
-            if abs(axis @ axis2) > 1e-6:
-                raise JaxanimError(f"specs[{i}]: a universal joint's axis and axis2 must be perpendicular")
-        lo, hi, sw = -np.inf, np.inf, np.inf
-        has_limit = False
-        if "limit" in spec:
-            if kind != "hinge":
-                raise JaxanimError(f"specs[{i}].limit: a range is for hinge joints (ball joints: swing / twist)")
-            lo, hi = _range(f"specs[{i}].limit", spec["limit"])
-            has_limit = True
-        if "swing" in spec or "twist" in spec:
-            if kind != "ball":
-                raise JaxanimError(f"specs[{i}]: swing / twist limits are for ball joints")
-            if "axis" not in spec:
-                raise JaxanimError(f"specs[{i}].axis: missing (a ball joint's swing / twist limits need an axis)")
-            axis = axis2 = _unit(f"specs[{i}].axis", spec["axis"])
-            if "swing" in spec:
-                sw = float(spec["swing"])
-                if not 0 < sw <= np.pi:
-                    raise JaxanimError(f"specs[{i}].swing: expected a cone half angle in (0, pi], got {spec['swing']!r}")
-            if "twist" in spec:
-                lo, hi = _range(f"specs[{i}].twist", spec["twist"])
-            has_limit = True
+        axis, axis2 = _axes(i, kind, spec)
+        axis, axis2, has_limit, lo, hi, sw = _limits(i, kind, spec, axis, axis2)
         limited.append(has_limit)
         lower.append(lo)
         upper.append(hi)
@@ -233,6 +203,49 @@ def make_joints(bodies: RigidBodies, state: BodyState, specs: Sequence[dict]) ->
         rest=stack(rest, 4), limited=tuple(limited), lower=jnp.asarray(lower, dtype), upper=jnp.asarray(upper, dtype),
         swing=jnp.asarray(swing, dtype),
     )
+
+
+def _axes(i: int, kind: str, spec: dict) -> tuple[np.ndarray, np.ndarray]:
+    """A hinge's axis, a universal joint's two axes (world frame); ``e_x`` for the other types."""
+    axis = axis2 = np.array([1.0, 0.0, 0.0])
+    if kind in ("hinge", "universal"):
+        if "axis" not in spec:
+            raise JaxanimError(f"specs[{i}].axis: missing (a {kind} joint needs one)")
+        axis = _unit(f"specs[{i}].axis", spec["axis"])
+        axis2 = axis
+    if kind == "universal":
+        if "axis2" not in spec:
+            raise JaxanimError(f"specs[{i}].axis2: missing (a universal joint needs two axes)")
+        axis2 = _unit(f"specs[{i}].axis2", spec["axis2"])
+        if abs(axis @ axis2) > 1e-6:
+            raise JaxanimError(f"specs[{i}]: a universal joint's axis and axis2 must be perpendicular")
+    return axis, axis2
+
+
+def _limits(i: int, kind: str, spec: dict, axis: np.ndarray, axis2: np.ndarray):
+    """``(axis, axis2, limited, lower, upper, swing)``: a hinge's range, or a ball joint's swing cone
+    and twist range about its ``axis`` (which then replaces both axes)."""
+    lo, hi, swing = -np.inf, np.inf, np.inf
+    limited = False
+    if "limit" in spec:
+        if kind != "hinge":
+            raise JaxanimError(f"specs[{i}].limit: a range is for hinge joints (ball joints: swing / twist)")
+        lo, hi = _range(f"specs[{i}].limit", spec["limit"])
+        limited = True
+    if "swing" in spec or "twist" in spec:
+        if kind != "ball":
+            raise JaxanimError(f"specs[{i}]: swing / twist limits are for ball joints")
+        if "axis" not in spec:
+            raise JaxanimError(f"specs[{i}].axis: missing (a ball joint's swing / twist limits need an axis)")
+        axis = axis2 = _unit(f"specs[{i}].axis", spec["axis"])
+        if "swing" in spec:
+            swing = float(spec["swing"])
+            if not 0 < swing <= np.pi:
+                raise JaxanimError(f"specs[{i}].swing: expected a cone half angle in (0, pi], got {spec['swing']!r}")
+        if "twist" in spec:
+            lo, hi = _range(f"specs[{i}].twist", spec["twist"])
+        limited = True
+    return axis, axis2, limited, lo, hi, swing
 
 
 def _range(name: str, value) -> tuple[float, float]:

@@ -50,20 +50,6 @@ from ._tree_solve import _plan
 
 __all__ = ["PhysicsModel", "joint_error", "make_model"]
 
-# The names that lived here in 0.1 and that jaxanim.app's CLI imports from this module
-# (``jaxanim.physics._model.SimResult``, ``rollout``); resolved lazily (they import this module).
-_MOVED = {"Rollout": "_rollout", "SimResult": "_rollout", "rollout": "_rollout", "step": "_step",
-          "to_mjcf": "_mjcf"}
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        import importlib
-
-        return getattr(importlib.import_module(f"{__package__}.{_MOVED[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 class PhysicsModel(eqx.Module):
     """Bodies, joints and constraint parameters (the constant part of a simulation).
 
