@@ -3,6 +3,8 @@ gradient descent."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -96,7 +98,37 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
     return y_new, new_state
 
 
-class GaussNewton(AbstractLeastSquaresSolver):
+class _AbstractLineSearch(AbstractLeastSquaresSolver):
+    """The fields and steps shared by :class:`GaussNewton` and :class:`GradientDescent`: one
+    backtracking line search per iteration along the Gauss-Newton (``steepest = False``) or the
+    projected gradient (``steepest = True``) direction."""
+
+    steepest: ClassVar[bool]
+    rtol: Float[Array, ""] = eqx.field(default=1e-8, converter=jnp.asarray)
+    atol: Float[Array, ""] = eqx.field(default=1e-10, converter=jnp.asarray)
+    max_steps: int = eqx.field(default=100, static=True)
+    fixed_steps: bool = eqx.field(default=False, static=True)
+    max_backtracks: int = eqx.field(default=8, static=True)
+
+    def __check_init__(self):
+        _check_int("max_steps", self.max_steps, 1)
+        _check_int("max_backtracks", self.max_backtracks, 0)
+
+    def init(self, problem, y, args):
+        return _line_search_init(self, problem, y, args, steepest=self.steepest)
+
+    def step(self, problem, y, args, state):
+        return _line_search_step(self, problem, y, args, state, steepest=self.steepest)
+
+    def terminate(self, problem, y, args, state):
+        rtol, atol = _tolerances(self, y.dtype)
+        return _terminate(state, rtol, atol, singular_stops=True)
+
+    def postprocess(self, problem, y, args, state, result):
+        return y, _stats(state)
+
+
+class GaussNewton(_AbstractLineSearch):
     r"""Gauss-Newton with a backtracking (Armijo) line search.
 
     Each iteration solves ``J^T J p = -J^T r`` (or the minimum-norm form
@@ -117,26 +149,5 @@ class GaussNewton(AbstractLeastSquaresSolver):
         max_backtracks: the most step halvings per line search (static).
     """
 
-    rtol: Float[Array, ""] = eqx.field(default=1e-8, converter=jnp.asarray)
-    atol: Float[Array, ""] = eqx.field(default=1e-10, converter=jnp.asarray)
-    max_steps: int = eqx.field(default=100, static=True)
-    fixed_steps: bool = eqx.field(default=False, static=True)
-    max_backtracks: int = eqx.field(default=8, static=True)
-
-    def __check_init__(self):
-        _check_int("max_steps", self.max_steps, 1)
-        _check_int("max_backtracks", self.max_backtracks, 0)
-
-    def init(self, problem, y, args):
-        return _line_search_init(self, problem, y, args, steepest=False)
-
-    def step(self, problem, y, args, state):
-        return _line_search_step(self, problem, y, args, state, steepest=False)
-
-    def terminate(self, problem, y, args, state):
-        rtol, atol = _tolerances(self, y.dtype)
-        return _terminate(state, rtol, atol, singular_stops=True)
-
-    def postprocess(self, problem, y, args, state, result):
-        return y, _stats(state)
+    steepest: ClassVar[bool] = False
 

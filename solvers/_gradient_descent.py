@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
-import jax.numpy as jnp
-from jaxtyping import Array, Float
 
-from ._checks import _check_int
-from ._gauss_newton import _line_search_init, _line_search_step
-from ._ls_base import AbstractLeastSquaresSolver, _stats, _terminate, _tolerances
+from ._gauss_newton import _AbstractLineSearch
 
 
-class GradientDescent(AbstractLeastSquaresSolver):
+class GradientDescent(_AbstractLineSearch):
     r"""Gradient descent (the Jacobian-transpose method) with Buss's step length: a baseline.
 
     Each iteration steps along the negative projected gradient ``-g``, ``g = J^T r`` (variables at
@@ -60,26 +58,6 @@ class GradientDescent(AbstractLeastSquaresSolver):
         max_backtracks: the most step halvings per line search (static).
     """
 
-    rtol: Float[Array, ""] = eqx.field(default=1e-8, converter=jnp.asarray)
-    atol: Float[Array, ""] = eqx.field(default=1e-10, converter=jnp.asarray)
+    steepest: ClassVar[bool] = True
     max_steps: int = eqx.field(default=1000, static=True)
-    fixed_steps: bool = eqx.field(default=False, static=True)
-    max_backtracks: int = eqx.field(default=8, static=True)
-
-    def __check_init__(self):
-        _check_int("max_steps", self.max_steps, 1)
-        _check_int("max_backtracks", self.max_backtracks, 0)
-
-    def init(self, problem, y, args):
-        return _line_search_init(self, problem, y, args, steepest=True)
-
-    def step(self, problem, y, args, state):
-        return _line_search_step(self, problem, y, args, state, steepest=True)
-
-    def terminate(self, problem, y, args, state):
-        rtol, atol = _tolerances(self, y.dtype)
-        return _terminate(state, rtol, atol, singular_stops=True)
-
-    def postprocess(self, problem, y, args, state, result):
-        return y, _stats(state)
 
