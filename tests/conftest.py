@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import pathlib
+import shutil
+import tempfile
 
 import jax
 import pytest
@@ -12,6 +15,25 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+_CACHE_ENV = "JAXANIM_TEST_COMPILE_CACHE"
+
+
+def pytest_configure(config):
+    """One persistent compilation cache per test run, shared by the xdist workers (they inherit the
+    controller's environment): a program that several test files compile (the CMU-skeleton IK, the
+    character's rollout) is compiled by XLA once per run. Each run starts empty, so times stay those
+    of a clean machine; ``jax_persistent_cache_*`` keep every program, however small or quick."""
+    if not hasattr(config, "workerinput"):  # the controller (or a run without xdist) owns the folder
+        config._jaxanim_cache = tempfile.mkdtemp(prefix="jaxanim-test-xla-")
+        os.environ[_CACHE_ENV] = config._jaxanim_cache
+    jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_ENV])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def pytest_unconfigure(config):
+    if getattr(config, "_jaxanim_cache", None):
+        shutil.rmtree(config._jaxanim_cache, ignore_errors=True)
 
 
 def shared_data_dir() -> pathlib.Path:
