@@ -64,7 +64,7 @@ EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "He
 
 
 @jax.jit
-def _fk(skel, q, t=None):
+def _fk(skel, q, t):
     """FK, jitted (eager FK dispatches op by op, compiling each primitive separately: seconds on
     the CMU skeleton); one compile per skeleton structure, shared by the tests of this module."""
     return jaxanim.forward_kinematics(skel, q, t)
@@ -154,7 +154,7 @@ def test_bad_input():
 
 
 def _height(skel):
-    out = _fk(skel, skel.rest_rotations())
+    out = _fk(skel, skel.rest_rotations(), skel.offsets)  # = translations None, the (q, t) compile
     p = np.asarray(out.site_positions())
     return float(p[:, 1].max() - p[:, 1].min())
 
@@ -230,8 +230,9 @@ def test_ik_matches_scipy_least_squares():
     }
     for name, targets in cases.items():
         both, n = _problem_fns(skel, targets, q, t)
-        f = jax.jit(lambda y, both=both: both(y)[0])
-        jf = jax.jit(lambda y, both=both: both(y)[1])
+        both = jax.jit(both)  # one compile gives scipy the residual and the Jacobian
+        f = lambda y, both=both: both(y)[0]  # noqa: E731
+        jf = lambda y, both=both: both(y)[1]  # noqa: E731
         sol = ik.solve_ik(skel, targets, q, t, regularization=1e-3, solver=solvers.LevenbergMarquardt(max_steps=300),
                           stop_at_tolerance=False)
         assert bool(jnp.all(jnp.isfinite(sol.rotations))), name
