@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,7 +18,7 @@ from jaxanim.ik import _problem as ik_impl
 from jaxanim import rotations as rot
 
 from .conftest import shared_data_dir
-from .helpers import assert_close, random_pose, shared_clip, small_skeleton
+from .helpers import assert_close, batched_fk, random_pose, shared_clip, small_skeleton
 
 _TOL_REACH = 1e-6
 
@@ -26,7 +27,7 @@ def _problem_fns(skel, targets, q, t, **kw):
     layout = ik_impl._layout(skel, targets, kw.get("pin"), kw.get("frozen", ()), kw.get("root_translation", "free"))
     pin_ref = None
     if layout.pin_idx is not None:
-        pin_ref = jaxanim.forward_kinematics(skel, q, t).site_positions()[layout.pin_idx]
+        pin_ref = _fk(skel, q, t).site_positions()[layout.pin_idx]
     reg_w = jnp.full(skel.num_joints, 1e-3)
 
     def both(y):
@@ -41,7 +42,7 @@ def test_ik_jacobian_is_exact(kw):
     skel = small_skeleton()
     q, t = random_pose(skel, 0)
     q2, t2 = random_pose(skel, 1)
-    goal = jaxanim.forward_kinematics(skel, q2, t2)
+    goal = _fk(skel, q2, t2)
     targets = (
         ik.Target("forearm_End", goal.end_site_positions[1], rot.matrix_to_quat(goal.rotations[4]), 2.0),
         ik.Target("head_End", position=goal.end_site_positions[0]),
@@ -62,20 +63,43 @@ def _cmu():
 EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "Head_End")
 
 
+@jax.jit
+def _fk(skel, q, t):
+    """FK, jitted (eager FK dispatches op by op, compiling each primitive separately: seconds on
+    the CMU skeleton); one compile per skeleton structure, shared by the tests of this module."""
+    return jaxanim.forward_kinematics(skel, q, t)
+
+
+@jax.jit
+def _random_pose_sites(skel, eul, root_rotvec, root_t):
+    """Site positions and world rotations of the pose ``_random_targets`` draws (jitted)."""
+    q = rot.euler_to_quat(eul, "ZYX")
+    q = q.at[0].set(rot.rotvec_to_quat(root_rotvec))
+    t = skel.offsets.at[0].set(root_t)
+    out = jaxanim.forward_kinematics(skel, q, t)
+    return out.site_positions(), rot.matrix_to_quat(out.rotations)
+
+
+def jitted_limit_violation(skel, batched=False):
+    """``(limits, rotations) -> ik.limit_violation(skel, limits, rotations)``, jitted (eager, it
+    dispatches op by op, and an eager ``vmap`` too: each op compiled separately), over a batch of
+    poses if ``batched``. ``skel`` is a constant (a swing-twist limit without an axis takes it from
+    the concrete offsets); limits with other bounds reuse the compile. tests/test_ik_limits.py uses it too."""
+    fn = functools.partial(ik.limit_violation, skel)
+    return eqx.filter_jit(jax.vmap(fn, in_axes=(None, 0)) if batched else fn)
+
+
 def _random_targets(skel, seed):
     """Targets from FK of a random pose within +-45 deg of the rest pose, root rotated freely."""
     rng = np.random.default_rng(seed)
     eul = rng.uniform(-np.pi / 4, np.pi / 4, size=(skel.num_joints, 3))
-    q = rot.euler_to_quat(jnp.asarray(eul), "ZYX")
-    q = q.at[0].set(rot.rotvec_to_quat(jnp.asarray(rng.normal(size=3))))
-    t = skel.offsets.at[0].set(jnp.asarray(rng.normal(size=3) * 5))
-    out = jaxanim.forward_kinematics(skel, q, t)
-    pos = out.site_positions()
+    pos, quats = _random_pose_sites(skel, jnp.asarray(eul), jnp.asarray(rng.normal(size=3)),
+                                    jnp.asarray(rng.normal(size=3) * 5))
     tg = []
     for name in EFFECTORS:
         i = skel.site_index(name)
         owner = i if i < skel.num_joints else skel.end_site_parents[i - skel.num_joints]
-        tg.append(ik.Target(name, pos[i], rot.matrix_to_quat(out.rotations[owner])))
+        tg.append(ik.Target(name, pos[i], quats[owner]))
     return tuple(tg)
 
 
@@ -94,7 +118,7 @@ def test_reachable_targets_on_cmu_skeleton():
 def test_pin_frozen_and_vmap_equals_loop():
     skel = small_skeleton()
     q, t = random_pose(skel, 4)
-    base = jaxanim.forward_kinematics(skel, q, t)
+    base = _fk(skel, q, t)
     # reachable goals near the hand (an unreachable one leaves LM crawling to max_steps, and two
     # unconverged iterates need not agree to rounding)
     goals = [base.end_site_positions[1] + jnp.asarray(d) for d in ([0.1, 0, 0.05], [0, -0.1, 0.1], [0.05, 0.05, -0.1])]
@@ -111,7 +135,7 @@ def test_pin_frozen_and_vmap_equals_loop():
         one = single(g)
         # same problem, same solver: equal up to the solver tolerance (fusion changes the rounding)
         assert_close("rotations", batched.rotations[i], one.rotations, atol=1e-8)
-        out = jaxanim.forward_kinematics(skel, one.rotations, one.translations)
+        out = _fk(skel, one.rotations, one.translations)
         assert_close("pinned head_End", out.end_site_positions[0], base.end_site_positions[0], atol=1e-9)
         assert_close("frozen leg", jnp.abs(jnp.sum(one.rotations[5] * q[5])), 1.0, atol=1e-12)
 
@@ -130,7 +154,7 @@ def test_bad_input():
 
 
 def _height(skel):
-    out = jaxanim.forward_kinematics(skel, skel.rest_rotations())
+    out = _fk(skel, skel.rest_rotations(), skel.offsets)  # = translations None, the (q, t) compile
     p = np.asarray(out.site_positions())
     return float(p[:, 1].max() - p[:, 1].min())
 
@@ -146,7 +170,7 @@ def test_games105_single_frame_tasks():
     skel, motion = _cmu()
     h = _height(skel)
     q, t = motion.rotations[100], motion.translations[100]
-    out = jaxanim.forward_kinematics(skel, q, t)
+    out = _fk(skel, q, t)
     lh = out.positions[skel.index("LeftHand")]
     rh = out.positions[skel.index("RightHand")]
     goal_l = lh + jnp.asarray([0.1, 0.05, 0.1]) * h
@@ -164,7 +188,7 @@ def test_games105_single_frame_tasks():
         # reachable: met within solve_ik's default tolerance (1e-5 x the skeleton's size)
         assert bool(sol.success), (case, solvers.RESULTS[sol.result], sol.position_errors)
         assert float(jnp.max(sol.position_errors)) <= tol, (case, sol.position_errors)
-        res = jaxanim.forward_kinematics(skel, sol.rotations, sol.translations)
+        res = _fk(skel, sol.rotations, sol.translations)
         if "pin" in case:
             assert_close("pinned toe", res.end_site_positions[skel.end_site_names.index("LeftToeBase_End")], toe, atol=1e-9 * h)
         else:
@@ -176,7 +200,7 @@ def test_games105_wrist_holding_over_the_clip():
     shared_data_dir()
     skel, motion = _cmu()
     h = _height(skel)
-    fk = jax.jit(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)))
+    fk = batched_fk()
     out = fk(skel, motion.rotations, motion.translations)
     R_root = out.rotations[:, 0]
     fwd = R_root[:, :, 2] * jnp.asarray([[1.0, 0.0, 1.0]])  # root z axis projected on the ground (Y up)
@@ -198,16 +222,17 @@ def test_ik_matches_scipy_least_squares():
 
     skel = small_skeleton()
     q, t = random_pose(skel, 9)
-    base = jaxanim.forward_kinematics(skel, q, t).end_site_positions
-    far = jaxanim.forward_kinematics(skel, *random_pose(skel, 10)).end_site_positions
+    base = _fk(skel, q, t).end_site_positions
+    far = _fk(skel, *random_pose(skel, 10)).end_site_positions
     cases = {
         # near the start: both solvers end in the same basin
         "near": (ik.Target("forearm_End", base[1] + 0.05), ik.Target("head_End", base[0] - 0.03, weight=0.5)),
     }
     for name, targets in cases.items():
         both, n = _problem_fns(skel, targets, q, t)
-        f = jax.jit(lambda y, both=both: both(y)[0])
-        jf = jax.jit(lambda y, both=both: both(y)[1])
+        both = jax.jit(both)  # one compile gives scipy the residual and the Jacobian
+        f = lambda y, both=both: both(y)[0]  # noqa: E731
+        jf = lambda y, both=both: both(y)[1]  # noqa: E731
         sol = ik.solve_ik(skel, targets, q, t, regularization=1e-3, solver=solvers.LevenbergMarquardt(max_steps=300),
                           stop_at_tolerance=False)
         assert bool(jnp.all(jnp.isfinite(sol.rotations))), name
@@ -226,22 +251,27 @@ def test_unreachable_target_gives_the_closest_pose_and_no_success():
     at distance |target - shoulder| - (L1 + L2) (analytic)."""
     skel = small_skeleton()
     q, t = random_pose(skel, 11, scale=0.3)
-    out = jaxanim.forward_kinematics(skel, q, t)
+    out = _fk(skel, q, t)
     shoulder = out.positions[skel.index("arm")]
     L = float(jnp.linalg.norm(t[4]) + jnp.linalg.norm(skel.end_site_offsets[1]))  # forearm bone as posed
     goal = shoulder + jnp.asarray([3.0, 1.0, -0.5])
     frozen = tuple(n for n in skel.names if n not in ("arm", "forearm"))
+    solver = solvers.LevenbergMarquardt(max_steps=1000)
     sol = ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, frozen=frozen, root_translation="fixed",
-                      regularization=0.0, solver=solvers.LevenbergMarquardt(max_steps=1000))
+                      regularization=0.0, solver=solver)
     # a large-residual problem: Gauss-Newton type methods converge only linearly here
     assert bool(jnp.all(jnp.isfinite(sol.rotations)))
     assert not bool(sol.success)
     expect = float(jnp.linalg.norm(goal - shoulder)) - L
     assert_close("distance to the unreachable target", sol.position_errors[0], expect, atol=1e-6)
-    # a reachable one succeeds
+    # a reachable one succeeds with the default solver (LevenbergMarquardt(), max_steps=100): solved
+    # by the same compiled program as above (only max_steps differs, a static field; the iterates do
+    # not depend on it), so success within the default's 100 steps is success with max_steps=100
     near = out.end_site_positions[1] + 0.01
-    ok = ik.solve_ik(skel, ik.Target("forearm_End", near), q, t, frozen=frozen, root_translation="fixed")
+    ok = ik.solve_ik(skel, ik.Target("forearm_End", near), q, t, frozen=frozen, root_translation="fixed",
+                     regularization=0.0, solver=solver)
     assert bool(ok.success), (solvers.RESULTS[ok.result], ok.position_errors)
+    assert int(ok.stats["num_steps"]) < solvers.LevenbergMarquardt().max_steps, ok.stats["num_steps"]
 
 
 def test_nan_target_gives_no_nan_pose():
@@ -263,7 +293,7 @@ def test_cli_ik_writes_edited_bvh(tmp_path):
     short = jaxanim.Motion(m.rotations[:8], m.translations[:8], m.frame_time)
     src = tmp_path / "walk8.bvh"
     jaxanim.write_bvh(src, skel, short)
-    fk = jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0))
+    fk = batched_fk()  # jitted (an eager vmap compiles op by op)
     hand = np.asarray(fk(skel, short.rotations, short.translations).positions[:, skel.index("LeftHand")])
     goal = hand + np.array([0.05, 0.1, 0.0])
     spec = {"pin": "LeftToeBase_End", "frozen": ["RightUpLeg"],
@@ -277,7 +307,7 @@ def test_cli_ik_writes_edited_bvh(tmp_path):
     got = np.asarray(fk(skel2, edited.rotations, edited.translations).positions[:, skel.index("LeftHand")])
     assert float(np.abs(got - goal).max()) < 1e-4  # file precision (6 decimals) bounds it
     limits = ik.targets_from_json(skel, spec, 8)[1]["limits"]
-    assert float(jnp.max(jax.vmap(lambda q: ik.limit_violation(skel, limits, q))(edited.rotations))) < 1e-6
+    assert float(jnp.max(jitted_limit_violation(skel, batched=True)(limits, edited.rotations))) < 1e-6
     # bad input: a clear error and exit code 2
     (tmp_path / "bad.json").write_text(json.dumps({"targets": [{"joint": "Tail", "position": [0, 0, 0]}]}))
     assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "bad.json"), "--out", str(out)]) == 2
@@ -291,7 +321,7 @@ def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
     skel = small_skeleton()
     q, t = random_pose(skel, 11)
     goal_q, goal_t = random_pose(skel, 12)
-    out = jaxanim.forward_kinematics(skel, goal_q, goal_t)
+    out = _fk(skel, goal_q, goal_t)
     targets = (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4])),
                ik.Target("head_End", out.end_site_positions[0], weight=0.5))
     tol = 1e-3
@@ -338,9 +368,11 @@ def test_joint_weights_are_the_damping_metric():
     """A stiff joint (large w_j in (J^T J + lambda W)) moves less than with unit weights."""
     skel = small_skeleton()
     q, t = random_pose(skel, 13)
-    goal = jaxanim.forward_kinematics(skel, q, t).end_site_positions[1] + jnp.asarray([0.2, -0.1, 0.1])
+    goal = _fk(skel, q, t).end_site_positions[1] + jnp.asarray([0.2, -0.1, 0.1])
     w = jnp.ones(skel.num_joints).at[skel.index("arm")].set(1e4)
-    plain = ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, root_translation="fixed")
+    # unit weights given as an array: the same compiled solve as the stiff one (one structure)
+    plain = ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, root_translation="fixed",
+                        joint_weights=jnp.ones(skel.num_joints))
     stiff = ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, root_translation="fixed", joint_weights=w)
     assert bool(plain.success) and bool(stiff.success)
     moved = [float(rot.quat_distance(s.rotations[3], q[3])) for s in (plain, stiff)]
@@ -389,7 +421,7 @@ def _count_traces():
 def small_problem():
     skel = small_skeleton()
     q, t = random_pose(skel, 20)
-    goal = jaxanim.forward_kinematics(skel, *random_pose(skel, 21, scale=0.3)).end_site_positions[1]
+    goal = _fk(skel, *random_pose(skel, 21, scale=0.3)).end_site_positions[1]
     return skel, q, t, goal
 
 

@@ -16,10 +16,11 @@ import solvers
 from jaxanim import ik
 from jaxanim.ik import _problem
 from jaxanim import rotations as rot
-from jaxanim.limits import EulerLimit, SwingTwistLimit, _charts, limit_violation
+from jaxanim.limits import EulerLimit, SwingTwistLimit, _charts
 
 from .conftest import shared_data_dir
 from .helpers import random_pose, shared_clip, small_skeleton
+from .test_ik import jitted_limit_violation
 
 _VIOLATION_ATOL = 1e-12  # hard limits hold exactly up to round-off of the quaternion <-> chart maps
 
@@ -70,6 +71,7 @@ def test_euler_violation_matches_scipy():
     lower, upper = np.radians([-40, -100, -20]), np.radians([50, 120, 70])
     lim = EulerLimit("arm", lower, upper, "ZXY")
     rng = np.random.default_rng(1)
+    violation = jitted_limit_violation(skel)
     for _ in range(20):
         q, _ = random_pose(skel, int(rng.integers(1 << 30)))
         a = Rotation.from_quat(np.roll(np.asarray(q[3]), -1)).as_euler("ZXY")
@@ -79,7 +81,7 @@ def test_euler_violation_matches_scipy():
             c = 0.5 * (lower + upper)
             cand = c + (cand - c + np.pi) % (2 * np.pi) - np.pi
             best = min(best, np.max(np.maximum(np.maximum(cand - upper, lower - cand), 0)))
-        np.testing.assert_allclose(limit_violation(skel, lim, q)[0], best, atol=1e-12)
+        np.testing.assert_allclose(violation(lim, q)[0], best, atol=1e-12)
 
 
 def test_swing_twist_violation_matches_geometry():
@@ -89,6 +91,7 @@ def test_swing_twist_violation_matches_geometry():
     cone, twist = 0.5, (-0.3, 0.4)
     lim = SwingTwistLimit("arm", cone, twist, axis=axis)
     rng = np.random.default_rng(2)
+    violation = jitted_limit_violation(skel)
     for _ in range(20):
         q, _ = random_pose(skel, int(rng.integers(1 << 30)))
         R = Rotation.from_quat(np.roll(np.asarray(q[3]), -1))
@@ -97,7 +100,7 @@ def test_swing_twist_violation_matches_geometry():
         Rs = Rotation.from_rotvec(np.cross(axis, image) / np.linalg.norm(np.cross(axis, image)) * swing)
         tau = (Rs.inv() * R).as_rotvec() @ axis
         expected = max(swing - cone, 0, tau - twist[1], twist[0] - tau)
-        np.testing.assert_allclose(limit_violation(skel, lim, q)[0], expected, atol=1e-10)
+        np.testing.assert_allclose(violation(lim, q)[0], expected, atol=1e-10)
 
 
 def _setup(skel, targets, q, t, *, limits=(), root_translation="free", frozen=(), regularization=1e-3):
@@ -134,7 +137,8 @@ def test_hard_limits_reach_the_bounded_optimum_of_scipy(limited_problem):
     skel, targets, q, t, kw, sol, free = limited_problem
     assert sol.result == solvers.RESULTS.successful
     assert not bool(sol.success)  # the goal is out of reach within the limits
-    v = limit_violation(skel, kw["limits"], sol.rotations)
+    violation = jitted_limit_violation(skel)
+    v = violation(kw["limits"], sol.rotations)
     assert float(jnp.max(v)) <= _VIOLATION_ATOL
     problem = _setup(skel, targets, q, t, **kw)
     lo, hi = (np.asarray(b) for b in problem["bounds"])
@@ -148,7 +152,7 @@ def test_hard_limits_reach_the_bounded_optimum_of_scipy(limited_problem):
     assert float(jnp.max(rot.quat_distance(sol.rotations, q_ref))) < 1e-6
     # some limit is active: without limits the cost is lower and the limits are broken
     assert float(free.stats["cost"]) < ref.cost - 1e-6
-    assert float(jnp.max(limit_violation(skel, kw["limits"], free.rotations))) > 1e-3
+    assert float(jnp.max(violation(kw["limits"], free.rotations))) > 1e-3
 
 
 def test_soft_limits_approach_the_hard_solution(limited_problem):
@@ -158,7 +162,7 @@ def test_soft_limits_approach_the_hard_solution(limited_problem):
         return ik.solve_ik(skel, targets, q, t, regularization=1e-3, limit_mode="soft", limit_weight=w, **kw)
 
     sols = jax.vmap(soft)(jnp.asarray([0.0, 1e2, 1e4]))
-    viol = jax.vmap(lambda r: jnp.max(limit_violation(skel, kw["limits"], r)))(sols.rotations)
+    viol = jnp.max(jitted_limit_violation(skel, batched=True)(kw["limits"], sols.rotations), axis=-1)
     assert np.all(np.diff(np.asarray(viol)) < 0), viol  # stiffer penalty, smaller violation
     assert float(viol[-1]) < 1e-4  # ~1/weight: 1.5e-5 here
     assert float(jnp.max(rot.quat_distance(sols.rotations[-1], hard.rotations))) < 1e-4
@@ -185,10 +189,11 @@ def test_hard_euler_limits_on_cmu_batch():
                            position_tolerance=1e-9, orientation_tolerance=1e-9)
 
     f = jax.jit(jax.vmap(solve, in_axes=(0, None)))
+    violation = jitted_limit_violation(skel, batched=True)
     for width, reachable in ((np.pi / 4, True), (np.radians(20), False)):
         sol = f(batch, width)
         limits = boxes(width)
-        v = jax.vmap(lambda r: limit_violation(skel, limits, r))(sol.rotations)
+        v = violation(limits, sol.rotations)
         assert float(jnp.max(v)) <= _VIOLATION_ATOL
         assert bool(jnp.all(jnp.isfinite(sol.rotations)))
         if reachable:
