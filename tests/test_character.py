@@ -108,12 +108,18 @@ def test_tracks_the_clip_with_stable_pd_and_the_root_force(cmu, tracked):
     # Joint error: the angle between each simulated joint's relative rotation and the clip's, at the
     # frame the controller tracked at that step.
     frames = jnp.clip(jnp.floor(jnp.arange(1, 301) * dt * motion.fps).astype(jnp.int32), 0, motion.num_frames - 1)
-    targets = jax.vmap(lambda q, t: character.spd_targets(char, q, t))(motion.rotations, motion.translations)
-    errors = jax.vmap(lambda s, f: jnp.linalg.norm(control.joint_errors(char.model.joints, s, targets[f])[0], axis=-1))(
-        run.trajectory, frames)
+
+    @eqx.filter_jit  # one compiled program (an eager vmap compiles op by op)
+    def errors_and_lowest(char, motion, trajectory, frames):
+        targets = jax.vmap(lambda q, t: character.spd_targets(char, q, t))(motion.rotations, motion.translations)
+        errors = jax.vmap(lambda s, f: jnp.linalg.norm(control.joint_errors(char.model.joints, s, targets[f])[0],
+                                                       axis=-1))(trajectory, frames)
+        lowest = jax.vmap(lambda s: jnp.min(contact._geometry(char.model.ground, char.model.bodies, s)[2]))(trajectory)
+        return errors, lowest
+
+    errors, lowest = errors_and_lowest(char, motion, run.trajectory, frames)
     assert float(jnp.mean(errors)) < 0.1, f"mean joint error {float(jnp.mean(errors)):.3f} rad"
     # Standing on the ground (complementarity contact), joints together.
-    lowest = jax.vmap(lambda s: jnp.min(contact._geometry(char.model.ground, char.model.bodies, s)[2]))(run.trajectory)
     assert float(jnp.min(lowest)) > -1e-3, f"sank {float(jnp.min(lowest))} m"
     assert float(jnp.max(physics.joint_error(char.model, run.final))) < 5e-3
 
