@@ -18,6 +18,9 @@ from .conftest import shared_data_dir
 from .helpers import xla_compiles
 
 
+_fk = eqx.filter_jit(jaxanim.forward_kinematics)  # one program per signature (eager FK compiles op by op)
+
+
 @pytest.fixture(scope="module")
 def cmu():
     data = shared_data_dir()
@@ -35,7 +38,7 @@ def test_bodies_joints_and_units(cmu):
     assert char.model.joints.num_joints == char.num_bodies - 1
     assert set(char.model.joints.types) == {"ball"}
     # Unit: the rest pose is 1.7 m tall.
-    rest = jaxanim.forward_kinematics(skel, skel.rest_rotations())
+    rest = _fk(skel, skel.rest_rotations())
     pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions)])
     np.testing.assert_allclose((pts[:, 1].max() - pts[:, 1].min()) * char.unit, 1.7, rtol=1e-12)
     # Left and right limbs weigh the same (the CMU skeleton is nearly symmetric).
@@ -51,8 +54,8 @@ def test_bodies_joints_and_units(cmu):
 def test_pose_state_round_trip(cmu):
     skel, q0, t0, char, state = cmu
     q, t = character.character_pose(char, state, reference=q0)
-    a = jaxanim.forward_kinematics(skel, q0, t0)
-    b = jaxanim.forward_kinematics(skel, q, t)
+    a = _fk(skel, q0, t0)
+    b = _fk(skel, q, t)
     np.testing.assert_allclose(b.positions, a.positions, atol=1e-9)
     np.testing.assert_allclose(b.end_site_positions, a.end_site_positions, atol=1e-9)
     # Meters: a body's center lies on its bone, in the file's frame scaled by the unit.
