@@ -15,7 +15,7 @@ import jaxanim
 from jaxanim import JaxanimError, character, contact, control, physics
 
 from .conftest import shared_data_dir
-from .helpers import xla_compiles
+from .helpers import phys_cmu_character, xla_compiles
 
 
 _fk = eqx.filter_jit(jaxanim.forward_kinematics)  # one program per signature (eager FK compiles op by op)
@@ -23,10 +23,8 @@ _fk = eqx.filter_jit(jaxanim.forward_kinematics)  # one program per signature (e
 
 @pytest.fixture(scope="module")
 def cmu():
-    data = shared_data_dir()
-    skel, motion = jaxanim.read_bvh(data / "bvh" / "cmu_01_01_trim300.bvh")[:2]
-    q0, t0 = motion.rotations[0], motion.translations[0]
-    char, state = character.build_character(skel, q0, t0, ground=contact.make_ground())
+    shared_data_dir()
+    skel, _, q0, t0, char, state = phys_cmu_character()  # built with make_ground(); shared with test_balance
     return skel, q0, t0, char, state
 
 
