@@ -22,7 +22,7 @@ from jaxanim import JaxanimError, balance, character, contact, physics
 from jaxanim import rotations as rot
 
 from .conftest import REPO, shared_data_dir
-from .helpers import xla_compiles
+from .helpers import phys_cmu_character, xla_compiles
 
 DT = 1 / 120  # the notes' control rate
 SECONDS = 10.0
@@ -38,10 +38,8 @@ _ATOL_VMAP_VEL = 1e-10  # velocities (m/s, rad/s)
 
 @pytest.fixture(scope="module")
 def cmu():
-    data = shared_data_dir()
-    skel, motion = jaxanim.read_bvh(data / "bvh" / "cmu_01_01_trim300.bvh")[:2]
-    q0, t0 = motion.rotations[0], motion.translations[0]
-    char, state = character.build_character(skel, q0, t0, ground=contact.make_ground("complementarity"))
+    shared_data_dir()
+    _, _, q0, t0, char, state = phys_cmu_character()  # complementarity ground; shared with test_character
     ctrl, args = balance.balance_controller(char, q0, t0, DT, push=PUSH)
     return char, q0, t0, state, ctrl, args
 

@@ -15,15 +15,16 @@ import jaxanim
 from jaxanim import JaxanimError, character, contact, control, physics
 
 from .conftest import shared_data_dir
-from .helpers import xla_compiles
+from .helpers import phys_cmu_character, xla_compiles
+
+
+_fk = eqx.filter_jit(jaxanim.forward_kinematics)  # one program per signature (eager FK compiles op by op)
 
 
 @pytest.fixture(scope="module")
 def cmu():
-    data = shared_data_dir()
-    skel, motion = jaxanim.read_bvh(data / "bvh" / "cmu_01_01_trim300.bvh")[:2]
-    q0, t0 = motion.rotations[0], motion.translations[0]
-    char, state = character.build_character(skel, q0, t0, ground=contact.make_ground())
+    shared_data_dir()
+    skel, _, q0, t0, char, state = phys_cmu_character()  # built with make_ground(); shared with test_balance
     return skel, q0, t0, char, state
 
 
@@ -35,7 +36,7 @@ def test_bodies_joints_and_units(cmu):
     assert char.model.joints.num_joints == char.num_bodies - 1
     assert set(char.model.joints.types) == {"ball"}
     # Unit: the rest pose is 1.7 m tall.
-    rest = jaxanim.forward_kinematics(skel, skel.rest_rotations())
+    rest = _fk(skel, skel.rest_rotations())
     pts = np.concatenate([np.asarray(rest.positions), np.asarray(rest.end_site_positions)])
     np.testing.assert_allclose((pts[:, 1].max() - pts[:, 1].min()) * char.unit, 1.7, rtol=1e-12)
     # Left and right limbs weigh the same (the CMU skeleton is nearly symmetric).
@@ -51,8 +52,8 @@ def test_bodies_joints_and_units(cmu):
 def test_pose_state_round_trip(cmu):
     skel, q0, t0, char, state = cmu
     q, t = character.character_pose(char, state, reference=q0)
-    a = jaxanim.forward_kinematics(skel, q0, t0)
-    b = jaxanim.forward_kinematics(skel, q, t)
+    a = _fk(skel, q0, t0)
+    b = _fk(skel, q, t)
     np.testing.assert_allclose(b.positions, a.positions, atol=1e-9)
     np.testing.assert_allclose(b.end_site_positions, a.end_site_positions, atol=1e-9)
     # Meters: a body's center lies on its bone, in the file's frame scaled by the unit.
@@ -108,12 +109,18 @@ def test_tracks_the_clip_with_stable_pd_and_the_root_force(cmu, tracked):
     # Joint error: the angle between each simulated joint's relative rotation and the clip's, at the
     # frame the controller tracked at that step.
     frames = jnp.clip(jnp.floor(jnp.arange(1, 301) * dt * motion.fps).astype(jnp.int32), 0, motion.num_frames - 1)
-    targets = jax.vmap(lambda q, t: character.spd_targets(char, q, t))(motion.rotations, motion.translations)
-    errors = jax.vmap(lambda s, f: jnp.linalg.norm(control.joint_errors(char.model.joints, s, targets[f])[0], axis=-1))(
-        run.trajectory, frames)
+
+    @eqx.filter_jit  # one compiled program (an eager vmap compiles op by op)
+    def errors_and_lowest(char, motion, trajectory, frames):
+        targets = jax.vmap(lambda q, t: character.spd_targets(char, q, t))(motion.rotations, motion.translations)
+        errors = jax.vmap(lambda s, f: jnp.linalg.norm(control.joint_errors(char.model.joints, s, targets[f])[0],
+                                                       axis=-1))(trajectory, frames)
+        lowest = jax.vmap(lambda s: jnp.min(contact._geometry(char.model.ground, char.model.bodies, s)[2]))(trajectory)
+        return errors, lowest
+
+    errors, lowest = errors_and_lowest(char, motion, run.trajectory, frames)
     assert float(jnp.mean(errors)) < 0.1, f"mean joint error {float(jnp.mean(errors)):.3f} rad"
     # Standing on the ground (complementarity contact), joints together.
-    lowest = jax.vmap(lambda s: jnp.min(contact._geometry(char.model.ground, char.model.bodies, s)[2]))(run.trajectory)
     assert float(jnp.min(lowest)) > -1e-3, f"sank {float(jnp.min(lowest))} m"
     assert float(jnp.max(physics.joint_error(char.model, run.final))) < 5e-3
 

@@ -79,17 +79,23 @@ def _chain():
     return physics.make_model(bodies, J), state, targets
 
 
-def _run_chain(dt, seconds, law, kp=300.0, kd=10.0):
-    model, state, targets = _chain()
-    kp, kd = jnp.full(3, kp), jnp.full(3, kd)
+@functools.partial(jax.jit, static_argnames="law")
+def _chain_final(model, state, targets, dt, num_steps, kp, kd, law):
+    """``num_steps`` steps of ``dt`` (both traced: one compiled program per law for every run)."""
 
-    def body(s, _):
+    def body(_, s):
         if law == "pd":
             tau = control.pd_joint_torques(model.joints, s, targets, kp, kd)
-            return physics.step(model, s, dt, physics.Control(joint_torque=tau)), None
-        return physics.step(model, s, dt, physics.Control(spd=physics.StablePD(targets, kp, kd))), None
+            return physics.step(model, s, dt, physics.Control(joint_torque=tau))
+        return physics.step(model, s, dt, physics.Control(spd=physics.StablePD(targets, kp, kd)))
 
-    final = jax.jit(lambda s: jax.lax.scan(body, s, None, length=int(round(seconds / dt)))[0])(state)
+    return jax.lax.fori_loop(0, num_steps, body, state)
+
+
+def _run_chain(dt, seconds, law, kp=300.0, kd=10.0):
+    model, state, targets = _chain()
+    final = _chain_final(model, state, targets, jnp.asarray(dt), jnp.asarray(int(round(seconds / dt))),
+                         jnp.full(3, kp), jnp.full(3, kd), law)
     return model, final, targets
 
 
@@ -148,8 +154,9 @@ def test_rollout_stops_a_blown_up_character_and_vmap_sweeps_gains():
         assert int(one.result._value) == codes[i] and int(one.num_steps) == int(runs.num_steps[i])
         np.testing.assert_allclose(one.final.position, runs.final.position[i], atol=1e-9)
     # A NaN state is reported, not propagated.
-    bad = _with_nan(state)
-    run = physics.rollout(model, bad, 1 / 120, 10)
+    bad = _with_nan(state)  # the soft gains' rollout above (the same compiled program)
+    run = physics.rollout(model, bad, 1 / 120, 240, record_every=240, controller=_pd_controller,
+                          controller_args=(gains[0][0], gains[1][0]))
     assert run.result == physics.SimResult.nonfinite and int(run.num_steps) == 0
 
 
