@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxanim import forward_kinematics, jacobian, read_bvh
+from scipy.spatial.transform import Rotation
 
 from .peers import PeerUnavailable
 from .peers import numpy_fk as numpy_peer
@@ -32,20 +33,6 @@ MAX_ANGLE_DEG = 45.0
 _ACCURACY_SAMPLES = 64  # configurations on which Python-loop peers are checked (untimed)
 
 
-def _quat_mul_np(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _axis_quat_np(angle: np.ndarray, axis: int) -> np.ndarray:
-    q = np.zeros(angle.shape + (4,))
-    q[..., 0] = np.cos(angle / 2)
-    q[..., 1 + axis] = np.sin(angle / 2)
-    return q
-
-
 def _cast(tree, dtype):
     """A copy of ``tree`` whose floating arrays are ``dtype`` (structure untouched)."""
     floating = lambda x: isinstance(x, (jax.Array, np.ndarray)) and jnp.issubdtype(x.dtype, jnp.floating)  # noqa: E731
@@ -63,11 +50,10 @@ class Problem:
         frames = np.arange(max_batch) % clip_q.shape[0]
         rng = np.random.default_rng(seed)
         ang = np.deg2rad(rng.uniform(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, size=(max_batch, clip_q.shape[1], 3)))
-        noise = _quat_mul_np(_quat_mul_np(_axis_quat_np(ang[..., 0], 0), _axis_quat_np(ang[..., 1], 1)),
-                             _axis_quat_np(ang[..., 2], 2))
-        q = _quat_mul_np(clip_q[frames], noise)
-        self.quats = q / np.linalg.norm(q, axis=-1, keepdims=True)
-        self.mats = numpy_peer.quat_to_matrix(self.quats)
+        r = Rotation.from_quat(clip_q[frames].reshape(-1, 4)[:, [1, 2, 3, 0]]) * Rotation.from_euler(
+            "XYZ", ang.reshape(-1, 3))  # each local rotation times Rx(a) Ry(b) Rz(c)
+        self.quats = r.as_quat()[:, [3, 0, 1, 2]].reshape(ang.shape[:2] + (4,))
+        self.mats = r.as_matrix().reshape(ang.shape[:2] + (3, 3))
         self.trans = np.ascontiguousarray(np.asarray(self.motion.translations, dtype=np.float64)[frames])
 
     def jax_inputs(self, dtype: Any, batch: int, matrices: bool = False) -> tuple[jax.Array, jax.Array]:

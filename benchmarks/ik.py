@@ -14,12 +14,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from scipy.spatial.transform import Rotation
 
 import solvers
 from jaxanim import read_bvh
 from jaxanim.ik import Target as IKTarget, solve_ik, solve_ik_ccd
 
-from .fk import CLIP, _axis_quat_np, _cast, _quat_mul_np, pinocchio
+from .fk import CLIP, _cast, pinocchio
 from .peers import require
 from .peers import numpy_fk as numpy_peer
 from .report import Row, Table, Target, sel
@@ -46,27 +47,10 @@ CLIK_DAMPING = 1e-4
 _SLOW_MAX_BATCH = 1024  # peers and baselines are not run above this in full mode (time budget)
 
 
-def _matrix_to_quat_np(R: np.ndarray) -> np.ndarray:
-    """wxyz unit quaternions (w >= 0) of rotation matrices ``[..., 3, 3]`` (Shepperd's method)."""
-    m = {(i, j): np.asarray(R, np.float64)[..., i, j] for i in range(3) for j in range(3)}
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    cands = np.stack([  # candidate k is 4 q_k q: divide by the largest |q_k|
-        np.stack([1 + tr, m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]], -1),
-        np.stack([m[2, 1] - m[1, 2], 1 + m[0, 0] - m[1, 1] - m[2, 2], m[0, 1] + m[1, 0], m[0, 2] + m[2, 0]], -1),
-        np.stack([m[0, 2] - m[2, 0], m[0, 1] + m[1, 0], 1 - m[0, 0] + m[1, 1] - m[2, 2], m[1, 2] + m[2, 1]], -1),
-        np.stack([m[1, 0] - m[0, 1], m[0, 2] + m[2, 0], m[1, 2] + m[2, 1], 1 - m[0, 0] - m[1, 1] + m[2, 2]], -1),
-    ], axis=-2)
-    k = np.argmax(np.stack([tr, m[0, 0], m[1, 1], m[2, 2]], -1), axis=-1)
-    q = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def _rotation_angle_np(R: np.ndarray) -> np.ndarray:
-    """Angle of rotation matrices: ``atan2(|vee(R - R^T)| / 2, (tr R - 1) / 2)`` (exact at small angles)."""
-    s = 0.5 * np.linalg.norm(np.stack(
-        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1), axis=-1)
-    return np.arctan2(s, 0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1))
+def _matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``[..., 3, 3]`` (float64) of wxyz quaternions ``[..., 4]``, normalized first."""
+    q = np.asarray(q, np.float64)
+    return Rotation.from_quat(q.reshape(-1, 4)[:, [1, 2, 3, 0]]).as_matrix().reshape(q.shape[:-1] + (3, 3))
 
 
 def _np_fk(skeleton, R: np.ndarray, t: np.ndarray):
@@ -78,8 +62,7 @@ def _np_fk(skeleton, R: np.ndarray, t: np.ndarray):
 
 def _fk_sites(skeleton, quats: np.ndarray, trans: np.ndarray, sites: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     """Float64 numpy FK of ``[B, J, 4]`` wxyz / ``[B, J, 3]`` poses: site positions and rotations."""
-    R, p_all = _np_fk(skeleton, numpy_peer.quat_to_matrix(np.asarray(quats, dtype=np.float64)),
-                      np.asarray(trans, dtype=np.float64))
+    R, p_all = _np_fk(skeleton, _matrices(quats), np.asarray(trans, dtype=np.float64))
     J, idx = skeleton.num_joints, [skeleton.site_index(s) for s in sites]
     return p_all[:, idx], R[:, [i if i < J else skeleton.end_site_parents[i - J] for i in idx]]
 
@@ -133,16 +116,15 @@ def draw_problems(skeleton, batch: int, seed: int = SEED, sites: Sequence[str] =
     J = skeleton.num_joints
     rng = np.random.default_rng(seed)
     ang = np.deg2rad(rng.uniform(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, size=(batch, J, 3)))
-    q = _quat_mul_np(_quat_mul_np(_axis_quat_np(ang[..., 2], 2), _axis_quat_np(ang[..., 1], 1)),
-                     _axis_quat_np(ang[..., 0], 0))  # Rz(a) Ry(b) Rx(c) times the identity rest rotations
-    root = rng.normal(size=(batch, 4))  # uniform on SO(3)
+    q = Rotation.from_euler("ZYX", ang[..., ::-1].reshape(-1, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(batch, J, 4)
+    root = rng.normal(size=(batch, 4))  # Rz(a) Ry(b) Rx(c) times the identity rest rotations; root uniform on SO(3)
     q[:, 0] = root / np.linalg.norm(root, axis=-1, keepdims=True)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     offsets = np.asarray(skeleton.offsets, dtype=np.float64)
     t = np.broadcast_to(offsets, (batch, J, 3)).copy()
     t[:, 0] += ROOT_TRANSLATION_STD * rng.normal(size=(batch, 3))
     pos, mats = _fk_sites(skeleton, q, t, sites)
-    return ProblemSet(skeleton, tuple(sites), q, t, pos, _matrix_to_quat_np(mats), mats,
+    quats = Rotation.from_matrix(mats.reshape(-1, 3, 3)).as_quat(canonical=True)[:, [3, 0, 1, 2]]  # w >= 0
+    return ProblemSet(skeleton, tuple(sites), q, t, pos, quats.reshape(mats.shape[:-2] + (4,)), mats,
                       np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (J, 1)), offsets.copy(), skeleton_height(skeleton))
 
 
@@ -179,14 +161,15 @@ def evaluate(skeleton, targets, rotations, translations, *, position_tolerance: 
     else:
         sites = tuple(t.site for t in targets)
         goal_p = np.stack([np.asarray(t.position, np.float64) for t in targets], axis=1)
-        goal_R = numpy_peer.quat_to_matrix(np.stack([np.asarray(t.orientation, np.float64) for t in targets], axis=1))
+        goal_R = _matrices(np.stack([np.asarray(t.orientation, np.float64) for t in targets], axis=1))
     b = goal_p.shape[0]
     q, t = np.asarray(rotations, np.float64)[:b], np.asarray(translations, np.float64)[:b]
     finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(t).all(axis=(1, 2))
     p, R = _fk_sites(skeleton, np.where(finite[:, None, None], q, np.array([1.0, 0, 0, 0])),
                      np.where(finite[:, None, None], t, 0.0), sites)
     pe = np.where(finite[:, None], np.linalg.norm(p - goal_p, axis=-1), np.inf)
-    oe = np.where(finite[:, None], _rotation_angle_np(np.einsum("bsij,bskj->bsik", R, goal_R)), np.inf)
+    angle = Rotation.from_matrix(np.einsum("bsij,bskj->bsik", R, goal_R).reshape(-1, 3, 3)).magnitude()
+    oe = np.where(finite[:, None], angle.reshape(pe.shape), np.inf)
     pt = POSITION_TOLERANCE_REL * skeleton_height(skeleton) if position_tolerance is None else float(position_tolerance)
     ok = (pe < pt).all(axis=1) & (oe < orientation_tolerance).all(axis=1)
     return IKEvaluation(pe, oe, ok, pt, float(orientation_tolerance))

@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["NumpyFK", "forward_kinematics", "quat_to_matrix"]
+__all__ = ["NumpyFK", "forward_kinematics"]
 
 
 class NumpyFK(NamedTuple):
@@ -17,16 +17,6 @@ class NumpyFK(NamedTuple):
     rotations: np.ndarray
     positions: np.ndarray
     end_site_positions: np.ndarray
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``[..., 3, 3]`` (``q``'s dtype) of wxyz quaternions ``[..., 4]``, normalized first."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    m = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                  2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                  2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
-    return m.reshape(q.shape[:-1] + (3, 3)).astype(q.dtype, copy=False)
 
 
 def forward_kinematics(parents: Sequence[int], end_site_parents: Sequence[int], end_site_offsets: np.ndarray,
