@@ -21,7 +21,7 @@ from jaxanim import read_bvh
 from jaxanim.ik import Target as IKTarget, solve_ik, solve_ik_ccd
 
 from .fk import CLIP, _cast, pinocchio
-from .peers import require
+from .peers import pinocchio_clik as clik, require
 from .peers import numpy_fk as numpy_peer
 from .report import Row, Table, Target, sel
 from .timing import Runner, status_counts
@@ -136,24 +136,21 @@ def make_problems(skeleton, batch: int, seed: int = SEED, dtype: Any = jnp.float
 
 class IKEvaluation(NamedTuple):
     """``position_errors [B, sites]`` (file units), ``orientation_errors [B, sites]`` (rad) from an
-    independent float64 numpy FK, ``success [B]`` (every error under its tolerance) and the tolerances."""
+    independent float64 numpy FK and ``success [B]`` (every error under its tolerance)."""
 
     position_errors: np.ndarray
     orientation_errors: np.ndarray
     success: np.ndarray
-    position_tolerance: float
-    orientation_tolerance: float
 
     @property
     def rate(self) -> float:
         return float(np.mean(self.success)) if self.success.size else float("nan")
 
-    def p98(self) -> tuple[float, float]:  # over problems, of each problem's worst position / orientation error
-        return tuple(float(np.percentile(e.max(axis=1), 98)) for e in (self.position_errors, self.orientation_errors))
+    def p98(self) -> str:  # over problems, of each problem's worst position / orientation error
+        return " / ".join(f"{np.percentile(e.max(axis=1), 98):.1e}" for e in self[:2])
 
 
-def evaluate(skeleton, targets, rotations, translations, *, position_tolerance: float | None = None,
-             orientation_tolerance: float = ORIENTATION_TOLERANCE) -> IKEvaluation:
+def evaluate(skeleton, targets, rotations, translations) -> IKEvaluation:
     """Errors and success of poses ``[B, J, 4]`` / ``[B, J, 3]`` against batched ``targets`` (a tuple of
     :class:`jaxanim.ik.Target` or a :class:`ProblemSet`); a non-finite pose fails (errors ``inf``)."""
     if isinstance(targets, ProblemSet):
@@ -170,9 +167,8 @@ def evaluate(skeleton, targets, rotations, translations, *, position_tolerance: 
     pe = np.where(finite[:, None], np.linalg.norm(p - goal_p, axis=-1), np.inf)
     angle = Rotation.from_matrix(np.einsum("bsij,bskj->bsik", R, goal_R).reshape(-1, 3, 3)).magnitude()
     oe = np.where(finite[:, None], angle.reshape(pe.shape), np.inf)
-    pt = POSITION_TOLERANCE_REL * skeleton_height(skeleton) if position_tolerance is None else float(position_tolerance)
-    ok = (pe < pt).all(axis=1) & (oe < orientation_tolerance).all(axis=1)
-    return IKEvaluation(pe, oe, ok, pt, float(orientation_tolerance))
+    pt = POSITION_TOLERANCE_REL * skeleton_height(skeleton)
+    return IKEvaluation(pe, oe, (pe < pt).all(axis=1) & (oe < ORIENTATION_TOLERANCE).all(axis=1))
 
 
 def batched_solver(skeleton, solve: Callable | None = None, **kwargs) -> Callable:
@@ -230,7 +226,8 @@ _METHODS = (
     ("optimistix LM", lambda d, p: _optx(d, "LevenbergMarquardt"),
      f"OptimistixSolver(optx.LevenbergMarquardt), ≤ {MAX_STEPS} steps, {_TOL}", True, _SLOW_MAX_BATCH),
     ("optimistix GN", lambda d, p: _optx(d, "GaussNewton"),
-     f"OptimistixSolver(optx.GaussNewton) (default linear solver), ≤ {MAX_STEPS} steps, {_TOL}", True, _SLOW_MAX_BATCH),
+     f"OptimistixSolver(optx.GaussNewton) (default linear solver), ≤ {MAX_STEPS} steps, {_TOL}", True,
+     _SLOW_MAX_BATCH),
     ("jaxopt LM", lambda d, p: _jaxopt(d), "JaxoptSolver('LevenbergMarquardt'): Cholesky, |J^T r| ≤ 1e-8 (f64) / "
      f"1e-3 (f32), ≤ {MAX_STEPS} steps", True, _SLOW_MAX_BATCH),
     (_CCD, _ccd, f"jaxanim.ik.solve_ik_ccd, while_loop, ≤ {CCD_MAX_SWEEPS} sweeps, stops at half the success "
@@ -240,10 +237,6 @@ _METHODS = (
      f"solvers.GradientDescent (Buss step + Armijo backtracking), ≤ {JT_MAX_STEPS} iterations, {_TOL}", False,
      _SLOW_MAX_BATCH),
 )
-
-
-def _fmt_err(ev: IKEvaluation) -> str:
-    return "{:.1e} / {:.1e}".format(*ev.p98())
 
 
 def _iterations(steps) -> str:
@@ -260,26 +253,26 @@ def _jax_row(run: Runner, impl: str, make: Callable, note: str, problems: Proble
         raise TypeError(f"the {dtype} solve returned {out.rotations.dtype} rotations")
     ev = evaluate(problems.skeleton, problems.first(b), out.rotations, out.translations)
     steps = np.asarray(out.stats["num_steps"])
-    return run.row(impl, dtype, b, tm, compile_s=comp, accuracy=_fmt_err(ev), success=ev.rate,
+    return run.row(impl, dtype, b, tm, compile_s=comp, accuracy=ev.p98(), success=ev.rate,
                    status=status_counts(out.result), note=f"{_iterations(steps)}; {note}", extra=dict(steps=steps))
 
 
-def _pin_row(run: Runner, pc, pin, problems: ProblemSet, b: int) -> Row:
+def _pin_row(run: Runner, pin, problems: ProblemSet, b: int) -> Row:
     n = min(b, run.config.loop_cap)
     prev = [r.us_per_char for r in run.table.rows if r.implementation == _PIN and r.measured]
     if prev:  # keep one call within about half the row budget
         n = min(n, max(64, int(0.5 * run.config.max_row_s / (max(prev) * 1e-6))))
     sub = problems.first(n)
-    q0s = pc.start_configurations(np.broadcast_to(sub.start_rotations, (n,) + sub.start_rotations.shape),
-                                  np.broadcast_to(sub.start_translations[0], (n, 3)))
-    loop = functools.partial(pc.clik_loop, damping=CLIK_DAMPING, max_iterations=CLIK_MAX_ITERATIONS,
+    q0s = list(clik.configurations(np.broadcast_to(sub.start_rotations, (n,) + sub.start_rotations.shape),
+                                   np.broadcast_to(sub.start_translations[0], (n, 3))))
+    loop = functools.partial(clik.clik_loop, damping=CLIK_DAMPING, max_iterations=CLIK_MAX_ITERATIONS,
                              position_tolerance=sub.position_tolerance, orientation_tolerance=ORIENTATION_TOLERANCE)
     (qs, its), tm = run.python(loop, pin, q0s, [pin.frame_ids[s] for s in sub.sites], sub.positions,
                                sub.rotation_matrices)
-    ev = evaluate(problems.skeleton, sub, *pc.to_poses(qs, np.asarray(problems.skeleton.offsets)))
+    ev = evaluate(problems.skeleton, sub, *clik.to_poses(qs, np.asarray(problems.skeleton.offsets)))
     note = (f"{_iterations(its)}; Python loop, damped least squares lambda={CLIK_DAMPING:g}, ≤ {CLIK_MAX_ITERATIONS} "
             "iterations, stops at the success thresholds" + (f"; timed on {n} of {b} problems" if n < b else ""))
-    return run.row(_PIN, "float64", b, tm, n, accuracy=_fmt_err(ev), success=ev.rate, note=note)
+    return run.row(_PIN, "float64", b, tm, n, accuracy=ev.p98(), success=ev.rate, note=note)
 
 
 def _iteration_note(table: Table) -> list[str]:
@@ -334,7 +327,7 @@ def run_ik(config) -> list[Table]:
         "percentile over problems of each problem's worst position error (units) / orientation error (rad). "
         "Iterations (solver steps; CCD sweeps; CLIK updates) are in the notes column.")
     run = Runner(config, table)
-    pin_mod, pin = pinocchio(run, skel, _PIN, "pinocchio_clik")
+    pin = pinocchio(run, skel, _PIN)
     dtypes = sorted(config.dtypes, key=lambda d: d != "float64")
     for dtype in dtypes:
         for b in batches:
@@ -342,6 +335,6 @@ def run_ik(config) -> list[Table]:
                 run.add(impl, dtype, b, lambda: _jax_row(run, impl, make, note, problems, dtype, b), peer=peer,
                         max_batch=max_batch)
             if pin is not None and dtype == dtypes[0]:
-                run.add(_PIN, "float64", b, lambda: _pin_row(run, pin_mod, pin, problems, b), peer=True)
+                run.add(_PIN, "float64", b, lambda: _pin_row(run, pin, problems, b), peer=True)
     table.notes += _iteration_note(table)
     return [table]

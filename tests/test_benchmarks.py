@@ -191,13 +191,13 @@ def test_ik_problems_are_reachable_and_evaluated_independently():
     assert again.success.all() and again.position_errors.max() < 1e-4  # float32 targets
     nan_pose = np.where(np.arange(8)[:, None, None] == 0, np.nan, ps.goal_rotations)
     assert bench_ik.evaluate(skel, ps, nan_pose, ps.goal_translations).success.tolist() == [False] + [True] * 7
-    from benchmarks.peers import PeerUnavailable, pinocchio_clik
+    from benchmarks.peers import PeerUnavailable, pinocchio_clik, pinocchio_peer
 
     try:
-        pin = pinocchio_clik.build_model(skel)
+        pin = pinocchio_peer.build_model(skel)
     except PeerUnavailable as exc:  # the evaluator checks above ran
         pytest.skip(f"Pinocchio CLIK part: {exc}")
-    q0s = pinocchio_clik.start_configurations(np.asarray(q[:3], np.float64), np.asarray(t[:3, 0], np.float64))
+    q0s = list(pinocchio_clik.configurations(np.asarray(q[:3], np.float64), np.asarray(t[:3, 0], np.float64)))
     fids = [pin.frame_ids[s] for s in ps.sites]
     qs, its = pinocchio_clik.clik_loop(
         pin, q0s, fids, ps.positions[:3], ps.rotation_matrices[:3], damping=bench_ik.CLIK_DAMPING,

@@ -8,11 +8,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["NumpyFK", "forward_kinematics"]
+__all__ = ["FKArrays", "forward_kinematics"]
 
 
-class NumpyFK(NamedTuple):
-    """``rotations [B, joints, 3, 3]`` (``R_world_joint``), ``positions [B, joints, 3]``, ``end_site_positions``."""
+class FKArrays(NamedTuple):
+    """``rotations [B, joints, 3, 3]`` (``R_world_joint``), ``positions [B, joints, 3]``, ``end_site_positions``
+    (``B`` absent for the one pose of ``benchmarks.fk.naive_fk``)."""
 
     rotations: np.ndarray
     positions: np.ndarray
@@ -20,7 +21,7 @@ class NumpyFK(NamedTuple):
 
 
 def forward_kinematics(parents: Sequence[int], end_site_parents: Sequence[int], end_site_offsets: np.ndarray,
-                       rotations: np.ndarray, translations: np.ndarray) -> NumpyFK:
+                       rotations: np.ndarray, translations: np.ndarray) -> FKArrays:
     """``R_world_j = R_world_parent @ R_parent_j``, ``p_world_j = p_world_parent + R_world_parent @ t_parent_j``
     and End Sites at their joint's transform of their OFFSET (``rotations [B, joints, 3, 3]``, root first)."""
     b, nj = rotations.shape[:2]
@@ -33,4 +34,4 @@ def forward_kinematics(parents: Sequence[int], end_site_parents: Sequence[int], 
         p[:, j] = p[:, parents[j]] + np.einsum("bij,bj->bi", Rp, translations[:, j])
     idx = np.asarray(end_site_parents, dtype=np.int64)
     ends = p[:, idx] + np.einsum("beij,ej->bei", R[:, idx], np.asarray(end_site_offsets, dtype=rotations.dtype))
-    return NumpyFK(R, p, ends)
+    return FKArrays(R, p, ends)

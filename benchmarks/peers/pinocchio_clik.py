@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from .pinocchio_peer import PinocchioSkeleton, build_model, configurations, load_pinocchio
+from .pinocchio_peer import PinocchioSkeleton, configurations
 
-__all__ = ["PinocchioSkeleton", "build_model", "clik_loop", "clik_solve", "load_pinocchio", "to_poses"]
+__all__ = ["clik_loop", "clik_solve", "configurations", "to_poses"]
 
 
 def clik_solve(ps: PinocchioSkeleton, q0: np.ndarray, frame_ids: Sequence[int], positions: np.ndarray,
@@ -48,11 +48,6 @@ def clik_loop(ps: PinocchioSkeleton, q0s: Sequence[np.ndarray], frame_ids: Seque
     """:func:`clik_solve` for each problem (the timed call): ``(final configurations, iterations [B])``."""
     out = [clik_solve(ps, q0, frame_ids, positions[b], rotations[b], **kwargs) for b, q0 in enumerate(q0s)]
     return [q for q, _, _ in out], np.array([it for _, it, _ in out], dtype=np.int64)
-
-
-def start_configurations(rotations: np.ndarray, root_translations: np.ndarray) -> list[np.ndarray]:
-    """Pinocchio ``q`` of jaxanim poses ``[B, J, 4]`` (wxyz) / ``[B, 3]`` (see :func:`configurations`)."""
-    return list(configurations(rotations, root_translations))
 
 
 def to_poses(qs: Sequence[np.ndarray], offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

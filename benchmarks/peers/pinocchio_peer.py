@@ -14,12 +14,7 @@ import numpy as np
 from . import require
 
 __all__ = ["PinocchioSkeleton", "build_model", "configurations", "fk_loop", "frame_jacobians", "jacobian_loop",
-           "load_pinocchio", "positions", "to_parent_frame_columns"]
-
-
-def load_pinocchio() -> Any:
-    """Import ``pinocchio`` or raise :class:`~benchmarks.peers.PeerUnavailable`."""
-    return require("pinocchio", "pip install pin==4.0.0")
+           "positions", "to_parent_frame_columns"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,11 +29,10 @@ class PinocchioSkeleton:
     frame_ids: dict[str, int]
 
 
-def build_model(skeleton, translations: np.ndarray | None = None) -> PinocchioSkeleton:
-    """The Pinocchio model of ``skeleton``; non-root joints sit at ``translations [J, 3]`` if given
-    (fixed offsets of one frame), else at their OFFSETs. Raises ``PeerUnavailable`` without Pinocchio."""
-    pin = load_pinocchio()
-    offsets = np.asarray(skeleton.offsets if translations is None else translations, dtype=np.float64)
+def build_model(skeleton) -> PinocchioSkeleton:
+    """The Pinocchio model of ``skeleton`` (non-root joints at their OFFSETs); ``PeerUnavailable`` without Pinocchio."""
+    pin = require("pinocchio", "pip install pin==4.0.0")
+    offsets = np.asarray(skeleton.offsets, dtype=np.float64)
     model = pin.Model()
     model.name = "jaxanim_skeleton"
     joint_ids, joint_frames, end_ids, frame_ids = [], [], [], {}
