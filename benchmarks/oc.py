@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +16,7 @@ from solvers.problems import LQProblem
 
 from .peers import crocoddyl_oc as co, require
 from .report import Row, Table, Target, format_seconds, sel
-from .timing import Runner, Timing, status_counts
+from .timing import Runner, Timing, status_counts, time_call
 
 __all__ = ["DARE_BATCHES", "OCSizes", "SWING_BATCHES", "UNICYCLE_BOUNDS", "UPRIGHT_TOLERANCE", "initial_states",
            "make_dare_systems", "make_lq", "riccati_residual", "run_oc"]
@@ -116,25 +115,15 @@ def _rel(a: float, b: float) -> float:
     return abs(a - b) / max(abs(b), 1e-300)
 
 
-def _time_single(config, fn: Callable[[], Any]) -> tuple[Any, Timing, float]:
-    """``(first output, timing, slowest sample)`` of one call per sample (at least 15 within ``max_row_s``)."""
-    out = fn()
-    samples: list[float] = []
-    for _ in range(max(config.repeats, 15)):
-        t0 = time.perf_counter()
-        fn()
-        samples.append(time.perf_counter() - t0)
-        if sum(samples) > config.max_row_s and len(samples) >= 3:
-            break
-    return out, Timing(float(np.median(samples)), min(samples), len(samples)), max(samples)
-
-
 def _croc_single(run: Runner, impl: str, problem, solver: str, maxiter: int, accuracy: Callable, what: str) -> Row:
+    """One Crocoddyl ``solve`` from zero controls per sample, at least 15 samples within ``max_row_s``."""
     us0 = [np.zeros(problem.runningModels[0].nu)] * problem.T
     xs0 = problem.rollout(us0)
-    s = co.make_solver(problem, solver)
-    ok, tm, slowest = _time_single(run.config, lambda: s.solve(xs0, us0, maxiter, True, 1e-9))
-    its, cost = int(s.iter), float(s.cost)
+    s = getattr(co.load_crocoddyl(), solver)(problem)
+    ok = s.solve(xs0, us0, maxiter, True, 1e-9)
+    tm = time_call(s.solve, xs0, us0, maxiter, True, 1e-9, repeats=max(run.config.repeats, 15), warmup=0, number=1,
+                   max_total_s=run.config.max_row_s)
+    its, cost, slowest = int(s.iter), float(s.cost), max(tm.all)
     note = (f"{its} iteration{'s' if its != 1 else ''}, {format_seconds(tm.median / max(its, 1))} / iteration, cost "
             f"{cost:.12g}; {what}; {tm.samples} single-call samples: min {format_seconds(tm.min)}, median "
             f"{format_seconds(tm.median)}, max {format_seconds(slowest)}")
@@ -164,9 +153,10 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
     table = Table(
         "oc-unicycle", f"Optimal control: unicycle, T = {T}, one solve (Crocoddyl's ActionModelUnicycle)",
         accuracy_label="rel. cost diff vs Crocoddyl (box rows: BoxDDP)", description=(
-            f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: dt = 0.1, cost 0.5 (10² "
-            f"|x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls. Box rows: u ∈ "
-            f"[{l0}, {h0}] × [{l1}, {h1}] (which the unbounded optimum leaves), `bounds=` vs `u_lb/u_ub` + SolverBoxDDP. "
+            f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: dt = 0.1, cost 0.5 "
+            f"(10² |x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls. Box "
+            f"rows: u ∈ [{l0}, {h0}] × [{l1}, {h1}] (which the unbounded optimum leaves), `bounds=` vs `u_lb/u_ub` + "
+            "SolverBoxDDP. "
             f"Batch 1, float64, ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default tolerances (`jax.jit`, compiled "
             "ahead of time), Crocoddyl th_stop 1e-9 (`solver.solve`, one call per sample, spread in the notes). "
             "Crocoddyl uses first derivatives of the dynamics (as jaxanim ilqr); jaxanim ddp also second ones."),
@@ -176,34 +166,29 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
     run = Runner(config, table)
     lo, hi = (np.asarray(b, np.float64) for b in UNICYCLE_BOUNDS)
     prob = problems.unicycle(T=T, dtype=jnp.float64)
-    ref: dict[bool, float] = {}
+    ref: dict[bool, float] = {}  # per boxed: the first row's cost (Crocoddyl SolverDDP if it ran)
 
-    def croc_row(solver: str, boxed: bool, python_model: bool = False) -> Row:
-        pb = co.unicycle_problem(T, UNICYCLE_X0, state_weight=10.0, control_weight=1.0, dt=0.1,
-                                 bounds=(lo, hi) if boxed else None, python_model=python_model)
-        what = ("Python action model (same dynamics and cost)" if python_model else "C++ ActionModelUnicycle") + (
-            ", bounds" if boxed else "")
-        return _croc_single(run, f"{_CROC} {solver}" + (" (Python model)" if python_model else ""), pb, solver,
-                            UNICYCLE_MAX_STEPS, lambda c, us: _rel(c, ref.setdefault(boxed, c)), what)
+    def rel(cost, boxed: bool) -> float:
+        return _rel(float(cost), ref.setdefault(boxed, float(cost)))
 
     for solver, boxed, py in (("SolverDDP", False, False), ("SolverFDDP", False, False), ("SolverBoxDDP", True, False),
                               ("SolverDDP", False, True)):
-        run.add(f"{_CROC} {solver}" + (" (Python model)" if py else ""), "float64", 1,
-                lambda: croc_row(solver, boxed, py), peer=True)
+        impl = f"{_CROC} {solver}" + (" (Python model)" if py else "")
+        what = ("Python action model (same dynamics and cost)" if py else "C++ ActionModelUnicycle") + (
+            ", bounds" if boxed else "")
+        run.add(impl, "float64", 1, lambda: _croc_single(run, impl, co.unicycle_problem(
+            T, UNICYCLE_X0, state_weight=10.0, control_weight=1.0, dt=0.1, bounds=(lo, hi) if boxed else None,
+            python_model=py), solver, UNICYCLE_MAX_STEPS, lambda c, us: rel(c, boxed), what), peer=True)
     for boxed in (False, True):
         for method in ("ilqr", "ddp"):
             def solve(x0, us, args, fn=getattr(solvers, method), boxed=boxed):
                 return fn(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost, args=args,
                           bounds=(jnp.asarray(lo), jnp.asarray(hi)) if boxed else None, max_steps=UNICYCLE_MAX_STEPS)
 
-            def accuracy(out, boxed=boxed):
-                ref.setdefault(boxed, float(out.cost))  # no Crocoddyl: the first jaxanim row is the reference
-                return _rel(float(out.cost), ref[boxed])
-
             impl = f"jaxanim {method}" + (" box" if boxed else "")
-            run.add(impl, "float64", 1, lambda: _jax_solve(run, impl, solve, (prob.x0, prob.us_init, prob.args), 1,
-                                                           accuracy, f"solvers.{method}"
-                                                           + (", bounds" if boxed else "") + ", while_loop"))
+            run.add(impl, "float64", 1, lambda: _jax_solve(
+                run, impl, solve, (prob.x0, prob.us_init, prob.args), 1, lambda out: rel(out.cost, boxed),
+                f"solvers.{method}" + (", bounds" if boxed else "") + ", while_loop"))
     rows = {r.implementation: r for r in table.rows if r.measured}
     c, py = rows.get(f"{_CROC} SolverDDP"), rows.get(f"{_CROC} SolverDDP (Python model)")
     if c and py:
@@ -247,17 +232,16 @@ def _lqr_table(config, sz: OCSizes) -> Table:
             lambda out: acc(out.cost, out.us),
             f"solvers.{method} on the problem as callbacks (LQProblem.as_control_problem)"))
 
-    def croc_row(solver: str) -> Row:
-        pb = co.lqr_problem(*(d[k] for k in ("A", "B", "Q", "R", "N", "f", "q", "r", "x0")), T)
-        return _croc_single(run, f"{_CROC} {solver}", pb, solver, 10, acc, "ActionModelLQR (C++)")
-
     for solver in ("SolverDDP", "SolverFDDP", "SolverBoxDDP"):
-        run.add(f"{_CROC} {solver}", "float64", 1, lambda: croc_row(solver), peer=True)
+        run.add(f"{_CROC} {solver}", "float64", 1, lambda: _croc_single(run, f"{_CROC} {solver}", co.lqr_problem(
+            *(d[k] for k in ("A", "B", "Q", "R", "N", "f", "q", "r", "x0")), T), solver, 10, acc,
+            "ActionModelLQR (C++)"), peer=True)
     c = next((r for r in table.rows if r.implementation == f"{_CROC} SolverDDP" and r.measured), None)
     if c is not None:
         same = _rel(c.extra["cost"], ref_cost) <= 1e-9
         table.notes.append(f"Cost conventions: Crocoddyl SolverDDP's final cost {c.extra['cost']:.15g} vs solvers.lqr "
-                           f"{ref_cost:.15g}: " + ("the same problem." if same else "MISMATCH (> 1e-9): the problems differ."))
+                           f"{ref_cost:.15g}: " + ("the same problem." if same else
+                                                   "MISMATCH (> 1e-9): the problems differ."))
     return table
 
 
@@ -301,18 +285,17 @@ def _dare_table(config, sz: OCSizes) -> Table:
         dP = np.abs(P[:k] - ref["P"][:k]).max(axis=(1, 2)) / np.abs(ref["P"][:k]).max(axis=(1, 2))
         return f"{dP.max():.1e} / {res:.1e}"
 
+    def dare_row(b: int) -> Row:
+        out, tm, comp = run.jax(jax.vmap(lambda A, B, Q, R: solvers.dare(A, B, Q, R)),
+                                *(jnp.asarray(z[:b]) for z in (A, B, Q, R)))
+        steps = np.asarray(out.stats["num_steps"])
+        return run.row("jaxanim dare", "float64", b, tm, compile_s=comp, accuracy=accuracy(out, b),
+                       success=float(_ok(out.result).mean()), status=status_counts(out.result),
+                       note=f"doubling steps {steps.mean():.1f} / {steps.max()} (mean / max)")
+
     for b in batches:
-        args = tuple(jnp.asarray(z[:b]) for z in (A, B, Q, R))
-        run.add("jaxanim dare", "float64", b, lambda: _dare_row(run, solvers.dare, args, b, accuracy))
+        run.add("jaxanim dare", "float64", b, lambda: dare_row(b))
     return table
-
-
-def _dare_row(run: Runner, dare: Callable, args: tuple, b: int, accuracy: Callable) -> Row:
-    out, tm, comp = run.jax(jax.jit(jax.vmap(lambda A, B, Q, R: dare(A, B, Q, R))), *args)
-    steps = np.asarray(out.stats["num_steps"])
-    return run.row("jaxanim dare", "float64", b, tm, compile_s=comp, accuracy=accuracy(out, b),
-                   success=float(_ok(out.result).mean()), status=status_counts(out.result),
-                   note=f"doubling steps {steps.mean():.1f} / {steps.max()} (mean / max)")
 
 
 def _agreement(cost, ok, ref: Row | None) -> str:
@@ -357,7 +340,7 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
 
     def croc_row(solver: str) -> Row:
         pb = co.swing_up_problem(name, prob.args, x0s[0], T)
-        s = co.make_solver(pb, solver)
+        s = getattr(co.load_crocoddyl(), solver)(pb)
         us0 = [np.zeros(prob.us_init.shape[1])] * T
         limit = min(big, config.loop_cap)
         out: dict[str, list] = {k: [] for k in ("cost", "conv", "its", "angle", "secs")}
@@ -405,18 +388,13 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
 
                 impl = f"jaxanim {method}" + (f" (fixed {max_steps})" if fixed else "")
                 note = f"solvers.{method}, " + (f"fixed_steps (scan of {max_steps})" if fixed else "while_loop")
-                run.add(impl, "float64", b, lambda: _swing_row(
-                    run, _jax_solve(run, impl, jax.vmap(one, in_axes=(0, 0, None)), args, b, accuracy, note, upright),
-                    ref))
+                run.add(impl, "float64", b, lambda: _jax_solve(
+                    run, impl, jax.vmap(one, in_axes=(0, 0, None)), args, b, accuracy, note, upright))
+    for r in table.rows if ref is not None else ():  # success on the starts Crocoddyl SolverDDP ran (like with like)
+        if "ok" in r.extra:
+            k = min(r.batch, ref.chars_per_call)
+            r.note += f"; success on Crocoddyl's first {k} starts {100 * r.extra['ok'][:k].mean():.1f} %"
     return table
-
-
-def _swing_row(run: Runner, row: Row, ref: Row | None) -> Row:
-    """Add the success rate on the starts Crocoddyl SolverDDP ran (like with like)."""
-    if ref is not None:
-        k = min(row.batch, ref.chars_per_call)
-        row.note += f"; success on Crocoddyl's first {k} starts {100 * row.extra['ok'][:k].mean():.1f} %"
-    return row
 
 
 def _compile_table(tables: Sequence[Table]) -> Table:

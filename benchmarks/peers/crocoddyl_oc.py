@@ -12,18 +12,14 @@ import numpy as np
 
 from . import PeerUnavailable, require
 
-__all__ = ["SOLVERS", "load_crocoddyl", "lqr_problem", "make_solver", "python_model_class", "swing_up_problem",
-           "unicycle_problem"]
-
-SOLVERS = ("SolverDDP", "SolverFDDP", "SolverBoxDDP")
-_HINT = "pip install crocoddyl==3.2.1"
+__all__ = ["load_crocoddyl", "lqr_problem", "python_model_class", "swing_up_problem", "unicycle_problem"]
 
 
 def load_crocoddyl():
     """The ``crocoddyl`` module, or :class:`PeerUnavailable`."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        croc = require("crocoddyl", _HINT)
+        croc = require("crocoddyl", "pip install crocoddyl==3.2.1")
     if not hasattr(croc, "ActionModelAbstract"):
         raise PeerUnavailable(f"crocoddyl {getattr(croc, '__version__', '?')} has no ActionModelAbstract")
     return croc
@@ -172,13 +168,12 @@ def unicycle_problem(T: int, x0: Sequence[float], *, state_weight: float, contro
     return _shooting(croc, x0, running, terminal, T, bounds)
 
 
-def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int, bounds=None):
+def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int):
     """A time-invariant LQ ``ShootingProblem`` of ``T`` ``ActionModelLQR`` knots (``N [n, m]``: jaxanim's
     ``S`` is ``N'``; Crocoddyl requires ``[[Q, N], [N', R]]`` positive semi-definite)."""
     croc = load_crocoddyl()
     arr = lambda z: np.ascontiguousarray(np.asarray(z, dtype=np.float64))  # noqa: E731
-    return _shooting(croc, x0, *(croc.ActionModelLQR(*(arr(z) for z in (A, B, Q, R, N, f, q, r))) for _ in range(2)),
-                     T, bounds)
+    return _shooting(croc, x0, *(croc.ActionModelLQR(*(arr(z) for z in (A, B, Q, R, N, f, q, r))) for _ in range(2)), T)
 
 
 def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
@@ -187,8 +182,3 @@ def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
     croc = load_crocoddyl()
     cls, a = python_model_class(name), {k: np.asarray(v, dtype=np.float64) for k, v in args.items()}
     return _shooting(croc, x0, cls(a), cls(a, terminal=True), T)
-
-
-def make_solver(problem, solver: str = "SolverDDP"):
-    """``crocoddyl.<solver>(problem)``."""
-    return getattr(load_crocoddyl(), solver)(problem)
