@@ -97,17 +97,14 @@ class ProblemSet:
         return dataclasses.replace(self, **{k: getattr(self, k)[:batch] for k in (
             "goal_rotations", "goal_translations", "positions", "orientations", "rotation_matrices")})
 
-    def targets(self, dtype: Any, batch: int | None = None) -> tuple:
-        """The first ``batch`` problems' :class:`jaxanim.ik.Target` s, with a leading batch axis."""
-        b = self.batch if batch is None else batch
-        return tuple(IKTarget(s, jnp.asarray(self.positions[:b, k], dtype),
-                              jnp.asarray(self.orientations[:b, k], dtype), jnp.ones((b,), dtype))
-                     for k, s in enumerate(self.sites))
+    def targets(self, dtype: Any) -> tuple:
+        """The problems' :class:`jaxanim.ik.Target` s, with a leading batch axis."""
+        return tuple(IKTarget(s, jnp.asarray(self.positions[:, k], dtype), jnp.asarray(self.orientations[:, k], dtype),
+                              jnp.ones((self.batch,), dtype)) for k, s in enumerate(self.sites))
 
-    def start(self, dtype: Any, batch: int | None = None) -> tuple[jax.Array, jax.Array]:
+    def start(self, dtype: Any) -> tuple[jax.Array, jax.Array]:
         """``(rotations [B, J, 4], translations [B, J, 3])`` of the start pose."""
-        b = self.batch if batch is None else batch
-        return tuple(jnp.asarray(np.broadcast_to(a, (b,) + a.shape), dtype)
+        return tuple(jnp.asarray(np.broadcast_to(a, (self.batch,) + a.shape), dtype)
                      for a in (self.start_rotations, self.start_translations))
 
 
@@ -205,10 +202,6 @@ def _jaxopt(dtype) -> dict:
     return _ik(solvers.JaxoptSolver("LevenbergMarquardt", atol=atol, max_steps=MAX_STEPS))
 
 
-def _ccd(dtype, problems: ProblemSet) -> dict:
-    return dict(solve=solve_ik_ccd, max_sweeps=CCD_MAX_SWEEPS, fixed_sweeps=False,
-                position_tolerance=0.5 * problems.position_tolerance, orientation_tolerance=0.5 * ORIENTATION_TOLERANCE)
-
 _LM_ADAPTIVE = "jaxanim LM (adaptive)"
 _LM_FIXED = f"jaxanim LM (fixed {FIXED_STEPS})"
 _CCD = "jaxanim CCD"
@@ -230,7 +223,10 @@ _METHODS = (
      _SLOW_MAX_BATCH),
     ("jaxopt LM", lambda d, p: _jaxopt(d), "JaxoptSolver('LevenbergMarquardt'): Cholesky, |J^T r| ≤ 1e-8 (f64) / "
      f"1e-3 (f32), ≤ {MAX_STEPS} steps", True, _SLOW_MAX_BATCH),
-    (_CCD, _ccd, f"jaxanim.ik.solve_ik_ccd, while_loop, ≤ {CCD_MAX_SWEEPS} sweeps, stops at half the success "
+    (_CCD, lambda d, p: dict(solve=solve_ik_ccd, max_sweeps=CCD_MAX_SWEEPS, fixed_sweeps=False,
+                             position_tolerance=0.5 * p.position_tolerance,
+                             orientation_tolerance=0.5 * ORIENTATION_TOLERANCE),
+     f"jaxanim.ik.solve_ik_ccd, while_loop, ≤ {CCD_MAX_SWEEPS} sweeps, stops at half the success "
      "thresholds; iterations = sweeps", False, _SLOW_MAX_BATCH),
     (_JT, lambda d, p: _ik(solvers.GradientDescent(**_tol(d), max_steps=JT_MAX_STEPS, fixed_steps=False,
                                                    max_backtracks=8)),
@@ -245,13 +241,12 @@ def _iterations(steps) -> str:
 
 
 def _jax_row(run: Runner, impl: str, make: Callable, note: str, problems: ProblemSet, dtype: str, b: int) -> Row:
-    kw = make(dtype, problems)
-    skel = _cast(problems.skeleton, dtype)
-    args = (problems.targets(dtype, b), *problems.start(dtype, b))
-    out, tm, comp = run.jax(batched_solver(skel, **kw), *args)
+    sub = problems.first(b)
+    out, tm, comp = run.jax(batched_solver(_cast(problems.skeleton, dtype), **make(dtype, problems)),
+                            sub.targets(dtype), *sub.start(dtype))
     if out.rotations.dtype != jnp.dtype(dtype):
         raise TypeError(f"the {dtype} solve returned {out.rotations.dtype} rotations")
-    ev = evaluate(problems.skeleton, problems.first(b), out.rotations, out.translations)
+    ev = evaluate(problems.skeleton, sub, out.rotations, out.translations)
     steps = np.asarray(out.stats["num_steps"])
     return run.row(impl, dtype, b, tm, compile_s=comp, accuracy=ev.p98(), success=ev.rate,
                    status=status_counts(out.result), note=f"{_iterations(steps)}; {note}", extra=dict(steps=steps))
@@ -293,16 +288,15 @@ def run_ik(config) -> list[Table]:
     """The ``ik`` benchmark (see the module docstring)."""
     batches = config.batches_for(IK_BATCHES)
     b_t = 1024 if 1024 in batches else max(batches)
-    own = sel((_LM_ADAPTIVE, _LM_FIXED), exact=True)
+    lm = (_LM_ADAPTIVE, _LM_FIXED)
+    own, own_b, own64 = sel(lm, exact=True), sel(lm, batch=b_t, exact=True), sel(lm, "float64", b_t, exact=True)
     table = Table("ik", "Inverse kinematics: 5 effectors, position + orientation (31-joint CMU skeleton)",
                   accuracy_label="p98 error: position / orientation", targets=[
-                      Target(f"≥ 99.5 % success at batch {b_t} in float32 and float64 (own LM)",
-                             lambda r: own(r) and r.batch == b_t, 0.995, "success", worst=True),
-                      Target(f"own LM ≤ 100 µs per problem at batch {b_t} in float64",
-                             lambda r: own(r) and r.batch == b_t and r.dtype == "float64", 100.0),
-                      Target(f"own LM ≥ 20x the throughput of the Pinocchio CLIK loop at batch {b_t}, float64",
-                             lambda r: own(r) and r.batch == b_t and r.dtype == "float64", 20.0,
-                             versus=sel(_PIN, "float64", b_t)),
+                      Target(f"≥ 99.5 % success at batch {b_t} in float32 and float64 (own LM)", own_b, 0.995,
+                             "success", worst=True),
+                      Target(f"own LM ≤ 100 µs per problem at batch {b_t} in float64", own64, 100.0),
+                      Target(f"own LM ≥ 20x the throughput of the Pinocchio CLIK loop at batch {b_t}, float64", own64,
+                             20.0, versus=sel(_PIN, "float64", b_t)),
                       Target(f"optimistix LM within 3x of the own adaptive LM at batch {b_t}, float64 (speedup "
                              "≥ 0.33x)", sel("optimistix LM", "float64", b_t), 1 / 3,
                              versus=sel(_LM_ADAPTIVE, "float64", b_t)),

@@ -24,7 +24,7 @@ import solvers
 from .peers import PeerUnavailable
 from .report import Row, Table
 
-__all__ = ["CompileStats", "Runner", "Timing", "TimingStats", "compile_time", "sample_call", "time_call"]
+__all__ = ["CompileStats", "Runner", "Timing", "compile_time", "sample_call", "status_counts", "time_call"]
 
 _LONG_CALL_S = 1.0
 _CALL_BUDGET_FACTOR = 4.0  # a row is skipped when one call is expected to take > this x max_row_s
@@ -39,10 +39,6 @@ class Timing:
     samples: int
     number: int = 1
     all: tuple[float, ...] = ()
-
-    repeats = property(lambda self: self.samples)
-
-TimingStats = Timing
 
 
 @dataclasses.dataclass(frozen=True)

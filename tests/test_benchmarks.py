@@ -140,7 +140,7 @@ def test_time_call_and_compile_time():
     cs = compile_time(jax.jit(lambda v: v * 2.0), x)
     assert cs.total > 0 and cs.total == pytest.approx(cs.lower + cs.compile)
     stats = time_call(cs.compiled, x, repeats=3, warmup=1)
-    assert stats.repeats == 3 and stats.number >= 1
+    assert stats.samples == 3 and stats.number >= 1
     assert stats.min <= stats.median <= max(stats.all)
     with pytest.raises(ValueError, match="repeats"):
         time_call(cs.compiled, x, repeats=0)
