@@ -21,7 +21,7 @@ from jaxanim import read_bvh
 from jaxanim.ik import Target as IKTarget, solve_ik, solve_ik_ccd
 
 from .fk import CLIP, _cast, pinocchio
-from .peers import pinocchio_clik as clik, require
+from .peers import pinocchio_peer, require
 from .peers import numpy_fk as numpy_peer
 from .report import Row, Table, Target, sel
 from .timing import Runner, status_counts
@@ -258,13 +258,13 @@ def _pin_row(run: Runner, pin, problems: ProblemSet, b: int) -> Row:
     if prev:  # keep one call within about half the row budget
         n = min(n, max(64, int(0.5 * run.config.max_row_s / (max(prev) * 1e-6))))
     sub = problems.first(n)
-    q0s = list(clik.configurations(np.broadcast_to(sub.start_rotations, (n,) + sub.start_rotations.shape),
-                                   np.broadcast_to(sub.start_translations[0], (n, 3))))
-    loop = functools.partial(clik.clik_loop, damping=CLIK_DAMPING, max_iterations=CLIK_MAX_ITERATIONS,
+    q0s = list(pinocchio_peer.configurations(np.broadcast_to(sub.start_rotations, (n,) + sub.start_rotations.shape),
+                                             np.broadcast_to(sub.start_translations[0], (n, 3))))
+    loop = functools.partial(pinocchio_peer.clik_loop, damping=CLIK_DAMPING, max_iterations=CLIK_MAX_ITERATIONS,
                              position_tolerance=sub.position_tolerance, orientation_tolerance=ORIENTATION_TOLERANCE)
     (qs, its), tm = run.python(loop, pin, q0s, [pin.frame_ids[s] for s in sub.sites], sub.positions,
                                sub.rotation_matrices)
-    ev = evaluate(problems.skeleton, sub, *clik.to_poses(qs, np.asarray(problems.skeleton.offsets)))
+    ev = evaluate(problems.skeleton, sub, *pinocchio_peer.to_poses(qs, np.asarray(problems.skeleton.offsets)))
     note = (f"{_iterations(its)}; Python loop, damped least squares lambda={CLIK_DAMPING:g}, ≤ {CLIK_MAX_ITERATIONS} "
             "iterations, stops at the success thresholds" + (f"; timed on {n} of {b} problems" if n < b else ""))
     return run.row(_PIN, "float64", b, tm, n, accuracy=ev.p98(), success=ev.rate, note=note)

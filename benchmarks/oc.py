@@ -342,20 +342,15 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
         pb = co.swing_up_problem(name, prob.args, x0s[0], T)
         s = getattr(co.load_crocoddyl(), solver)(pb)
         us0 = [np.zeros(prob.us_init.shape[1])] * T
-        limit = min(big, config.loop_cap)
-        out: dict[str, list] = {k: [] for k in ("cost", "conv", "its", "angle", "secs")}
-        t0 = time.perf_counter()
-        for i in range(limit):
-            t1 = time.perf_counter()
-            pb.x0 = x0s[i]
+        limit, solved, t0 = min(big, config.loop_cap), [], time.perf_counter()
+        for x0 in x0s[:limit]:  # (cost, converged, iterations, final angle, seconds) per start
+            t1, pb.x0 = time.perf_counter(), x0
             ok = s.solve(pb.rollout(us0), us0, max_steps, True, 1e-9)
-            for k, v in zip(out, (float(s.cost), bool(ok), int(s.iter), float(s.xs[-1][ai]),
-                                  time.perf_counter() - t1)):
-                out[k].append(v)
-            if time.perf_counter() - t0 > config.max_row_s and i >= 1:
+            solved.append((float(s.cost), bool(ok), int(s.iter), float(s.xs[-1][ai]), time.perf_counter() - t1))
+            if time.perf_counter() - t0 > config.max_row_s and len(solved) >= 2:
                 break
         total = time.perf_counter() - t0
-        cost, conv, its, angle, secs = (np.asarray(out[k]) for k in out)
+        cost, conv, its, angle, secs = (np.asarray(c) for c in zip(*solved))
         k = len(cost)
         success = conv & (np.abs(angle - np.pi) < UPRIGHT_TOLERANCE)
         p10, p50, pmax = np.percentile(secs / np.maximum(its, 1), [10, 50, 100])
