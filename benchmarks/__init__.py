@@ -48,9 +48,7 @@ class BenchConfig:
     @classmethod
     def make_quick(cls, **kwargs) -> BenchConfig:
         """A configuration for smoke tests: batches (1, 8), 3 repeats, 1 warm-up, loop cap 8."""
-        kw = dict(quick=True, batches=(1, 8), repeats=3, warmup=1, max_row_s=1.0, loop_cap=8)
-        kw.update(kwargs)
-        return cls(**kw)
+        return cls(**dict(quick=True, batches=(1, 8), repeats=3, warmup=1, max_row_s=1.0, loop_cap=8) | kwargs)
 
     def batches_for(self, default: Sequence[int]) -> tuple[int, ...]:
         return tuple(self.batches) if self.batches is not None else tuple(default)

@@ -26,9 +26,8 @@ from .peers import numpy_fk as numpy_peer
 from .report import Row, Table, Target, sel
 from .timing import Runner, status_counts
 
-__all__ = ["EFFECTORS", "IK_BATCHES", "IKEvaluation", "ORIENTATION_TOLERANCE", "POSITION_TOLERANCE_REL",
-           "ProblemSet", "batched_solver", "draw_problems", "evaluate", "load_skeleton", "make_problems", "run_ik",
-           "skeleton_height"]
+__all__ = ["EFFECTORS", "IKEvaluation", "ORIENTATION_TOLERANCE", "ProblemSet", "batched_solver", "draw_problems",
+           "evaluate", "load_skeleton", "make_problems", "run_ik", "skeleton_height"]
 
 IK_BATCHES = (1, 64, 1024, 4096)
 EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "Head_End")

@@ -18,8 +18,7 @@ from .peers import crocoddyl_oc as co, require
 from .report import Row, Table, Target, format_seconds, sel
 from .timing import Runner, Timing, status_counts, time_call
 
-__all__ = ["DARE_BATCHES", "OCSizes", "SWING_BATCHES", "UNICYCLE_BOUNDS", "UPRIGHT_TOLERANCE", "initial_states",
-           "make_dare_systems", "make_lq", "riccati_residual", "run_oc"]
+__all__ = ["OCSizes", "initial_states", "make_dare_systems", "make_lq", "riccati_residual", "run_oc"]
 
 SEED = 0
 UNICYCLE_X0 = (-1.0, -1.0, 1.0)

@@ -21,8 +21,8 @@ from .peers import mujoco_physics as mp
 from .report import Row, Table, Target, sel, usable_cores
 from .timing import Runner, Timing, status_counts
 
-__all__ = ["BATCHES", "CLIP", "DT", "KD", "KP", "PhysicsSizes", "STAND_FRAME", "StandingCharacter", "double_pendulum",
-           "root_velocities", "run_physics", "standing_character"]
+__all__ = ["CLIP", "DT", "PhysicsSizes", "StandingCharacter", "double_pendulum", "root_velocities", "run_physics",
+           "standing_character"]
 
 CLIP = "bvh/cmu_01_01_trim300.bvh"
 STAND_FRAME = 200  # both feet flat, center of mass over them

@@ -179,6 +179,5 @@ def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int):
 def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
     """A ``ShootingProblem`` of the Python model ``name`` (``"pendulum"``/``"cart_pole"``) with the
     float64 values of a :class:`solvers.problems.ControlProblem`'s ``args``."""
-    croc = load_crocoddyl()
-    cls, a = python_model_class(name), {k: np.asarray(v, dtype=np.float64) for k, v in args.items()}
-    return _shooting(croc, x0, cls(a), cls(a, terminal=True), T)
+    cls = python_model_class(name)  # its models take the args as float64 numpy
+    return _shooting(load_crocoddyl(), x0, cls(args), cls(args, terminal=True), T)

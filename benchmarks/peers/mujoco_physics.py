@@ -39,8 +39,7 @@ class MujocoSim:
     are returned in jaxanim's ``body_names`` order."""
 
     def __init__(self, xml: str, body_names: Sequence[str], root: int, root_velocities: np.ndarray):
-        mujoco = load_mujoco()
-        self.mujoco = mujoco
+        self.mujoco = mujoco = load_mujoco()
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, n) for n in body_names])
         if np.any(self.ids < 0):
@@ -51,13 +50,14 @@ class MujocoSim:
         self.root_dof = int(self.model.jnt_dofadr[free[0]])
         v = np.asarray(root_velocities, float).reshape(-1, 3)
         self.batch = v.shape[0]
-        d = mujoco.MjData(self.model)
-        self.qpos0 = d.qpos.copy()
+        self.qpos0 = mujoco.MjData(self.model).qpos.copy()
         self.qvel0 = np.zeros((self.batch, self.model.nv))
         self.qvel0[:, self.root_dof:self.root_dof + 3] = v
         self.datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
         self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        self.initial_states = np.stack([self._state_of(i) for i in range(self.batch)])
+        self.initial_states = np.empty((self.batch, mujoco.mj_stateSize(self.model, self._spec)))
+        for i, state in enumerate(self.initial_states):
+            mujoco.mj_getState(self.model, self.reset(i, mujoco.MjData(self.model)), state, self._spec)
 
     def reset(self, i: int, data=None):
         """Put character ``i``'s initial state into ``data`` (default its own ``MjData``)."""
@@ -67,28 +67,20 @@ class MujocoSim:
         d.qvel[:] = self.qvel0[i]
         return d
 
-    def _state_of(self, i: int) -> np.ndarray:
-        d = self.reset(i, self.mujoco.MjData(self.model))
-        out = np.empty(self.mujoco.mj_stateSize(self.model, self._spec))
-        self.mujoco.mj_getState(self.model, d, out, self._spec)
-        return out
-
-    def step_loop(self, nstep: int, count: int | None = None) -> None:
-        """Reset the first ``count`` characters (default all) and ``mj_step`` each ``nstep`` times."""
+    def step_loop(self, nstep: int, count: int) -> None:
+        """Reset the first ``count`` characters and ``mj_step`` each ``nstep`` times."""
         step, m = self.mujoco.mj_step, self.model
-        for i in range(self.batch if count is None else count):
+        for i in range(count):
             d = self.reset(i)
             for _ in range(nstep):
                 step(m, d)
 
-    def rollout(self, nstep: int, pool: list, count: int | None = None) -> np.ndarray:
-        """``mujoco.rollout.rollout`` of the first ``count`` characters (default all) from their start
-        states on the threads of ``pool`` (one ``MjData`` per thread); ``[count, nstep, nstate]``."""
+    def rollout(self, nstep: int, pool: list, count: int) -> np.ndarray:
+        """``mujoco.rollout.rollout`` of the first ``count`` characters from their start states on the threads
+        of ``pool`` (one ``MjData`` per thread); ``[count, nstep, nstate]``."""
         from mujoco import rollout as mj_rollout
 
-        init = self.initial_states[: self.batch if count is None else count]
-        state, _ = mj_rollout.rollout(self.model, pool, init, nstep=nstep, persistent_pool=True)
-        return state
+        return mj_rollout.rollout(self.model, pool, self.initial_states[:count], nstep=nstep, persistent_pool=True)[0]
 
     def positions(self, i: int = 0, *, state: np.ndarray | None = None, qpos: np.ndarray | None = None) -> np.ndarray:
         """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, or of a full-physics
