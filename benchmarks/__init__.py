@@ -1,7 +1,6 @@
-"""Benchmarks of jaxanim against its peers: ``python -m benchmarks [NAME ...] [--quick]``.
-
-:data:`REGISTRY` maps the command-line names to ``run(config: BenchConfig) -> list[Table]`` functions, imported
-lazily so that one benchmark's missing dependency never stops another; missing peers are ``skipped`` rows."""
+"""Benchmarks of jaxanim against its peers: ``python -m benchmarks [NAME ...] [--quick]``. :data:`REGISTRY` maps
+the command-line names to ``run(config: BenchConfig) -> list[Table]`` functions, imported lazily so that one
+benchmark's missing dependency never stops another; missing peers are ``skipped`` rows."""
 
 from __future__ import annotations
 

@@ -91,12 +91,10 @@ def _so3_exp(v: jax.Array) -> jax.Array:
 
 def perturbed_sites(skeleton, rotations: jax.Array, translations: jax.Array, sites: tuple[str, ...],
                     delta: jax.Array, fk: Callable | None = None) -> tuple[jax.Array, jax.Array]:
-    """Site positions ``[sites, 3]`` and rotations ``[sites, 3, 3]`` (world) after perturbing one pose.
-
-    ``delta = [dt (3), d_0 (3), ..., d_{J-1} (3)]``: the root translation becomes ``t_0 + dt`` and every
-    local rotation ``R_j`` becomes ``exp(d_j) R_j``; ``fk(skeleton, R_local, t_local)`` defaults to
-    jaxanim's ``forward_kinematics``. An End Site has its joint's rotation.
-    """
+    """Site positions ``[sites, 3]`` and rotations ``[sites, 3, 3]`` (world; an End Site has its joint's) after
+    perturbing one pose by ``delta = [dt (3), d_0 (3), ..., d_{J-1} (3)]``: the root translation becomes ``t_0 + dt``
+    and every local rotation ``R_j`` becomes ``exp(d_j) R_j``; ``fk(skeleton, R_local, t_local)`` defaults to
+    jaxanim's ``forward_kinematics``."""
     J = skeleton.num_joints
     R_local = _so3_exp(delta[3:].reshape(J, 3)) @ JaxRotation.from_quat(rotations[:, [1, 2, 3, 0]]).as_matrix()
     res = (fk or forward_kinematics)(skeleton, R_local, translations.at[0].add(delta[:3]))
@@ -191,12 +189,11 @@ def run_fk(config) -> list[Table]:
     """The ``fk`` benchmark (see the module docstring)."""
     batches = config.batches_for(FK_BATCHES)
     description = (
-        f"Global rotations, joint positions and End Site positions of a batch of poses of the 31-joint CMU skeleton "
-        f"(`{CLIP}`, 7 End Sites), one call per batch. Poses: clip frame `b mod 300` with every local rotation "
-        f"right-multiplied by a random rotation of up to ±{MAX_ANGLE_DEG:g}° about each axis (seed {SEED}), clip "
-        "translations. µs / char = time per call / batch (per configuration for capped Python loops). Accuracy: max "
-        "abs error of joint + End Site positions (file units, |p| ≤ ~30) against jaxanim float64 with quaternion "
-        "input (\"reference\").")
+        f"Global rotations, joint and End Site positions of a batch of poses of the 31-joint CMU skeleton (`{CLIP}`, "
+        f"7 End Sites), one call per batch. Poses: clip frame `b mod 300`, every local rotation right-multiplied by a "
+        f"random rotation of up to ±{MAX_ANGLE_DEG:g}° about each axis (seed {SEED}), clip translations. µs / char = "
+        "time per call / batch (per configuration for capped Python loops). Accuracy: max abs error of joint + End "
+        "Site positions (file units, |p| ≤ ~30) against jaxanim float64 with quaternion input (\"reference\").")
     targets = [Target("FK ≤ 0.5 µs per character at batch 4096 in float64", sel(_FK_REF, "float64", 4096), 0.5),
                Target("FK compile ≤ 2 s (jaxanim rows)", sel("jaxanim"), 2.0, "compile", worst=True)]
 
@@ -270,14 +267,13 @@ def run_jacobian(config) -> list[Table]:
     batches = config.batches_for(JACOBIAN_BATCHES)
     sites = JACOBIAN_SITES
     description = (
-        f"Geometric Jacobian `[5, 6, 96]` of {', '.join(f'`{s}`' for s in sites)} on the CMU skeleton: rows "
-        "`[linear; angular]` in world axes, columns the root translation then a rotation-vector increment of every "
-        "local rotation in its parent frame (`R_j <- exp(d_j) R_j`). Same poses as `fk`. The autodiff rows "
-        "differentiate FK after that perturbation (angular rows `vee(dR R^T)`), through jaxanim's "
-        "`forward_kinematics` or through the naive loop FK. Accuracy: max abs difference from `jax.jacfwd` of "
-        "jaxanim's FK in float64 (\"reference\"). Pinocchio's columns (root twist in the root frame, joint angular "
-        "velocities in the joint frames) are converted to these for the check only; its timed loop is "
-        "`computeJointJacobians` + 5 × `getFrameJacobian(LOCAL_WORLD_ALIGNED)`.")
+        f"Geometric Jacobian `[5, 6, 96]` of {', '.join(f'`{s}`' for s in sites)} on the CMU skeleton, poses of "
+        "`fk`: rows `[linear; angular]` in world axes, columns the root translation then a rotation-vector increment "
+        "of every local rotation in its parent frame (`R_j <- exp(d_j) R_j`). The autodiff rows differentiate FK "
+        "(jaxanim's `forward_kinematics` or the naive loop) after that perturbation (angular rows `vee(dR R^T)`). "
+        "Accuracy: max abs difference from `jax.jacfwd` of jaxanim's FK in float64 (\"reference\"); Pinocchio's "
+        "columns (root twist in the root frame, joint angular velocities in the joint frames) are converted to these "
+        "for the check only, its timed loop is `computeJointJacobians` + 5 × `getFrameJacobian(LOCAL_WORLD_ALIGNED)`.")
     targets = [Target("Jacobian of 5 end effectors ≤ 2 µs per character at batch 1024 in float64",
                       sel("jaxanim", "float64", 1024, exact=True), 2.0)]
     impls = [("jaxanim", None, None, False, "jit(vmap(jacobian)), analytic"),

@@ -307,18 +307,17 @@ def run_ik(config) -> list[Table]:
     problems = draw_problems(skel, max(batches), SEED)
     table.description = (
         f"Random reachable targets on the 31-joint CMU skeleton (`{CLIP}`, 96 degrees of freedom): each problem is "
-        f"the FK of a random pose (every joint within ±{MAX_ANGLE_DEG:g}° per axis of the rest pose, the root "
-        f"rotated uniformly at random and translated by N(0, {ROOT_TRANSLATION_STD}²) per axis, seed {SEED}), and "
-        f"its targets are the world position and orientation of {len(EFFECTORS)} effectors "
-        f"({', '.join(f'`{s}`' for s in EFFECTORS)}). Every solve starts from the rest pose; `solve_ik` rows use "
-        "`regularization=0` and the tolerances in their notes (CLIK stops at the success thresholds, CCD at half "
-        "of them). Rows are `jax.jit(jax.vmap(solve))` over the batch, compiled ahead of time (compile column); "
-        "Pinocchio CLIK is a Python loop over problems (float64). µs / char = µs per problem. **Success**: every "
-        f"position error < {POSITION_TOLERANCE_REL:g} × skeleton height ({problems.height:.2f} units, so "
-        f"{problems.position_tolerance:.4f}) and every orientation error < {ORIENTATION_TOLERANCE} rad, from an "
-        "independent float64 numpy FK of the returned poses (not the solvers' flags). Error column: 98th "
-        "percentile over problems of each problem's worst position error (units) / orientation error (rad). "
-        "Iterations (solver steps; CCD sweeps; CLIK updates) are in the notes column.")
+        f"the FK of a random pose (every joint within ±{MAX_ANGLE_DEG:g}° per axis of the rest pose, the root rotated "
+        f"uniformly at random and translated by N(0, {ROOT_TRANSLATION_STD}²) per axis, seed {SEED}), its targets "
+        f"the world position and orientation of {len(EFFECTORS)} effectors ({', '.join(f'`{s}`' for s in EFFECTORS)})."
+        " Every solve starts from the rest pose; `solve_ik` rows use `regularization=0` and the tolerances in their "
+        "notes (CLIK stops at the success thresholds, CCD at half of them). Rows are `jax.jit(jax.vmap(solve))` over "
+        "the batch, compiled ahead of time; Pinocchio CLIK is a Python loop over problems (float64). µs / char = µs "
+        f"per problem. **Success**: every position error < {POSITION_TOLERANCE_REL:g} × skeleton height "
+        f"({problems.height:.2f} units, so {problems.position_tolerance:.4f}) and every orientation error < "
+        f"{ORIENTATION_TOLERANCE} rad, from an independent float64 numpy FK of the returned poses (not the solvers' "
+        "flags). Error column: 98th percentile over problems of each problem's worst position error (units) / "
+        "orientation error (rad). Notes: iterations (solver steps; CCD sweeps; CLIK updates).")
     run = Runner(config, table)
     pin = pinocchio(run, skel, _PIN)
     dtypes = sorted(config.dtypes, key=lambda d: d != "float64")

@@ -130,6 +130,13 @@ def _croc_single(run: Runner, impl: str, problem, solver: str, maxiter: int, acc
                    extra=dict(cost=cost, its=its, slowest=slowest))
 
 
+def _solve(prob, method: str, **options) -> Callable:
+    """``(x0, us, args) -> solvers.<method>`` on ``prob``'s dynamics and costs (a new function: a fresh jit)."""
+    fn = getattr(solvers, method)
+    return lambda x0, us, args: fn(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost, args=args,
+                                   **options)
+
+
 def _jax_solve(run: Runner, impl: str, fn: Callable, args: tuple, b: int, accuracy: Callable, note: str,
                success: Callable = lambda out: _ok(out.result)) -> Row:
     out, tm, comp = run.jax(jax.jit(fn), *args)
@@ -180,11 +187,9 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
             python_model=py), solver, UNICYCLE_MAX_STEPS, lambda c, us: rel(c, boxed), what), peer=True)
     for boxed in (False, True):
         for method in ("ilqr", "ddp"):
-            def solve(x0, us, args, fn=getattr(solvers, method), boxed=boxed):
-                return fn(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost, args=args,
-                          bounds=(jnp.asarray(lo), jnp.asarray(hi)) if boxed else None, max_steps=UNICYCLE_MAX_STEPS)
-
             impl = f"jaxanim {method}" + (" box" if boxed else "")
+            solve = _solve(prob, method, bounds=(jnp.asarray(lo), jnp.asarray(hi)) if boxed else None,
+                           max_steps=UNICYCLE_MAX_STEPS)
             run.add(impl, "float64", 1, lambda: _jax_solve(
                 run, impl, solve, (prob.x0, prob.us_init, prob.args), 1, lambda out: rel(out.cost, boxed),
                 f"solvers.{method}" + (", bounds" if boxed else "") + ", while_loop"))
@@ -376,14 +381,10 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
         args = (jnp.asarray(x0s[:b]), jnp.broadcast_to(prob.us_init, (b,) + prob.us_init.shape), prob.args)
         for method in sz.swing_methods:
             for fixed in (False, True) if sz.swing_fixed else (False,):
-                def one(x0, us, args, fn=getattr(solvers, method), fixed=fixed):
-                    return fn(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost, args=args,
-                              max_steps=max_steps, fixed_steps=fixed)
-
                 impl = f"jaxanim {method}" + (f" (fixed {max_steps})" if fixed else "")
                 note = f"solvers.{method}, " + (f"fixed_steps (scan of {max_steps})" if fixed else "while_loop")
-                run.add(impl, "float64", b, lambda: _jax_solve(
-                    run, impl, jax.vmap(one, in_axes=(0, 0, None)), args, b, accuracy, note, upright))
+                one = jax.vmap(_solve(prob, method, max_steps=max_steps, fixed_steps=fixed), in_axes=(0, 0, None))
+                run.add(impl, "float64", b, lambda: _jax_solve(run, impl, one, args, b, accuracy, note, upright))
     for r in table.rows if ref is not None else ():  # success on the starts Crocoddyl SolverDDP ran (like with like)
         if "ok" in r.extra:
             k = min(r.batch, ref.chars_per_call)

@@ -148,8 +148,8 @@ def judge(target: Target, rows: Sequence[Row]) -> str:
     cands = [r for r in rows if r.measured and target.select(r) and key(r) is not None]
     if not cands:
         return f"Target: {target.text}: not measured in this run."
-    pick_max = higher != target.worst
-    r = max(cands, key=key) if pick_max else min(cands, key=key)
+    cands.sort(key=key, reverse=higher != target.worst)  # the judged row first
+    r = cands[0]
     if target.versus is not None:
         peers = [p for p in rows if p.measured and target.versus(p) and key(p) is not None]
         if not peers:
@@ -159,10 +159,8 @@ def judge(target: Target, rows: Sequence[Row]) -> str:
         return (f"Target: {target.text}: {_who(r)} {_fmt_metric(key(r), target.metric)} vs {_who(p)} "
                 f"{_fmt_metric(key(p), target.metric)} = {x:.3g}x: {'met' if x >= target.limit else 'missed'}.")
     ok = key(r) >= target.limit if higher else key(r) <= target.limit
-    span = ""
-    if target.worst and len(cands) > 1:
-        other = min(cands, key=key) if pick_max else max(cands, key=key)
-        span = f" (range {_fmt_metric(key(other), target.metric)} to it over {len(cands)} rows)"
+    span = f" (range {_fmt_metric(key(cands[-1]), target.metric)} to it over {len(cands)} rows)" if (
+        target.worst and len(cands) > 1) else ""
     return f"Target: {target.text}: {'worst' if target.worst else 'best'} {_who(r)} " \
            f"{_fmt_metric(key(r), target.metric)}{span}: {'met' if ok else 'missed'}."
 

@@ -1,10 +1,7 @@
 """Timing, and the one harness (:class:`Runner`) that turns a measurement into a :class:`~benchmarks.report.Row`.
-
-Compile time is ``jax.jit(f).lower(*args).compile()`` on a fresh ``jax.jit`` object; run time is the
-median (min) over samples, after warm-up, of one call waited for with ``block_until_ready`` (calls
-shorter than ``min_sample_s`` are repeated inside a sample; calls over a second are sampled only
-within the row budget). The two are reported apart.
-"""
+Compile time is ``jax.jit(f).lower(*args).compile()`` on a fresh ``jax.jit`` object; run time, reported apart, is
+the median (min) over samples, after warm-up, of one call waited for with ``block_until_ready`` (calls shorter than
+``min_sample_s`` are repeated inside a sample; calls over a second are sampled only within the row budget)."""
 
 from __future__ import annotations
 
@@ -148,10 +145,9 @@ class Runner:
 
     def add(self, impl: str, dtype: str | None, batch: int | None, make: Callable[[], Row], *, peer: bool = False,
             max_batch: int | None = None) -> Row | None:
-        """Append the row ``make()`` measures, or the reason it did not run; return it if measured.
-
-        A missing peer (``ImportError``, :class:`~benchmarks.peers.PeerUnavailable`) is one skipped row
-        for the implementation; a failure is a ``failed:`` row, and later batches point to it."""
+        """Append the row ``make()`` measures, or the reason it did not run; return it if measured. A missing
+        peer (``ImportError``, :class:`~benchmarks.peers.PeerUnavailable`) is one skipped row for the
+        implementation; a failure is a ``failed:`` row, and later batches point to it."""
         if not self.config.selects(impl):
             return None
         key = (impl, dtype)
