@@ -182,9 +182,10 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
         impl = f"{_CROC} {solver}" + (" (Python model)" if py else "")
         what = ("Python action model (same dynamics and cost)" if py else "C++ ActionModelUnicycle") + (
             ", bounds" if boxed else "")
-        run.add(impl, "float64", 1, lambda: _croc_single(run, impl, co.unicycle_problem(
-            T, UNICYCLE_X0, state_weight=10.0, control_weight=1.0, dt=0.1, bounds=(lo, hi) if boxed else None,
-            python_model=py), solver, UNICYCLE_MAX_STEPS, lambda c, us: rel(c, boxed), what), peer=True)
+        run.add(impl, "float64", 1, lambda: _croc_single(run, impl, co.python_problem(
+            "unicycle", prob.args, UNICYCLE_X0, T) if py else co.unicycle_problem(
+            T, UNICYCLE_X0, state_weight=10.0, control_weight=1.0, dt=0.1, bounds=(lo, hi) if boxed else None),
+            solver, UNICYCLE_MAX_STEPS, lambda c, us: rel(c, boxed), what), peer=True)
     for boxed in (False, True):
         for method in ("ilqr", "ddp"):
             impl = f"jaxanim {method}" + (" box" if boxed else "")
@@ -343,7 +344,7 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
     run = Runner(config, table)
 
     def croc_row(solver: str) -> Row:
-        pb = co.swing_up_problem(name, prob.args, x0s[0], T)
+        pb = co.python_problem(name, prob.args, x0s[0], T)
         s = getattr(co.load_crocoddyl(), solver)(pb)
         us0 = [np.zeros(prob.us_init.shape[1])] * T
         limit, solved, t0 = min(big, config.loop_cap), [], time.perf_counter()

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import PeerUnavailable, require
 
-__all__ = ["load_crocoddyl", "lqr_problem", "python_model_class", "swing_up_problem", "unicycle_problem"]
+__all__ = ["load_crocoddyl", "lqr_problem", "python_model_class", "python_problem", "unicycle_problem"]
 
 
 def load_crocoddyl():
@@ -151,20 +151,13 @@ def _shooting(croc, x0, running, terminal, T: int, bounds=None):
 
 
 def unicycle_problem(T: int, x0: Sequence[float], *, state_weight: float, control_weight: float, dt: float,
-                     bounds: tuple[np.ndarray, np.ndarray] | None = None, python_model: bool = False):
-    """A ``ShootingProblem`` of ``T`` unicycle knots (C++ ``ActionModelUnicycle``, or the Python
-    :class:`UnicycleModel` with ``python_model=True``); ``bounds`` sets ``u_lb``/``u_ub`` (BoxDDP)."""
+                     bounds: tuple[np.ndarray, np.ndarray] | None = None):
+    """A ``ShootingProblem`` of ``T`` C++ ``ActionModelUnicycle`` knots; ``bounds`` sets ``u_lb``/``u_ub`` (BoxDDP)."""
     croc = load_crocoddyl()
-    if python_model:
-        args = dict(dt=dt, goal=np.zeros(3), Q=np.full(3, state_weight**2), R=np.full(2, control_weight**2),
-                    QT=np.full(3, state_weight**2))
-        cls = python_model_class("unicycle")
-        running, terminal = cls(args), cls(args, terminal=True)
-    else:
-        running, terminal = croc.ActionModelUnicycle(), croc.ActionModelUnicycle()
-        for mdl in (running, terminal):
-            mdl.costWeights = np.array([state_weight, control_weight], dtype=np.float64)
-            mdl.dt = float(dt)
+    running, terminal = croc.ActionModelUnicycle(), croc.ActionModelUnicycle()
+    for mdl in (running, terminal):
+        mdl.costWeights = np.array([state_weight, control_weight], dtype=np.float64)
+        mdl.dt = float(dt)
     return _shooting(croc, x0, running, terminal, T, bounds)
 
 
@@ -176,8 +169,8 @@ def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int):
     return _shooting(croc, x0, *(croc.ActionModelLQR(*(arr(z) for z in (A, B, Q, R, N, f, q, r))) for _ in range(2)), T)
 
 
-def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
-    """A ``ShootingProblem`` of the Python model ``name`` (``"pendulum"``/``"cart_pole"``) with the
-    float64 values of a :class:`solvers.problems.ControlProblem`'s ``args``."""
+def python_problem(name: str, args: dict[str, Any], x0, T: int):
+    """A ``ShootingProblem`` of ``T`` knots of the Python model ``name`` (see :func:`python_model_class`) with the
+    values of a :class:`solvers.problems.ControlProblem`'s ``args``."""
     cls = python_model_class(name)  # its models take the args as float64 numpy
     return _shooting(load_crocoddyl(), x0, cls(args), cls(args, terminal=True), T)
