@@ -52,24 +52,20 @@ def _matrices(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q.reshape(-1, 4)[:, [1, 2, 3, 0]]).as_matrix().reshape(q.shape[:-1] + (3, 3))
 
 
-def _np_fk(skeleton, R: np.ndarray, t: np.ndarray):
-    """Float64 numpy FK of ``[B, J, 3, 3]`` / ``[B, J, 3]`` poses: ``(R_world [B, J, 3, 3], p_all [B, sites, 3])``."""
-    out = numpy_peer.forward_kinematics(skeleton.parents, skeleton.end_site_parents,
-                                        np.asarray(skeleton.end_site_offsets, dtype=np.float64), R, t)
-    return out.rotations, np.concatenate([out.positions, out.end_site_positions], axis=1)
-
-
 def _fk_sites(skeleton, quats: np.ndarray, trans: np.ndarray, sites: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     """Float64 numpy FK of ``[B, J, 4]`` wxyz / ``[B, J, 3]`` poses: site positions and rotations."""
-    R, p_all = _np_fk(skeleton, _matrices(quats), np.asarray(trans, dtype=np.float64))
+    out = numpy_peer.forward_kinematics(skeleton.parents, skeleton.end_site_parents,
+                                        np.asarray(skeleton.end_site_offsets, dtype=np.float64), _matrices(quats),
+                                        np.asarray(trans, dtype=np.float64))
     J, idx = skeleton.num_joints, [skeleton.site_index(s) for s in sites]
-    return p_all[:, idx], R[:, [i if i < J else skeleton.end_site_parents[i - J] for i in idx]]
+    p_all = np.concatenate([out.positions, out.end_site_positions], axis=1)
+    return p_all[:, idx], out.rotations[:, [i if i < J else skeleton.end_site_parents[i - J] for i in idx]]
 
 
 def skeleton_height(skeleton) -> float:
     """The vertical (y) extent of the rest pose's joints and End Sites, file units."""
-    y = _np_fk(skeleton, np.broadcast_to(np.eye(3), (1, skeleton.num_joints, 3, 3)),
-               np.asarray(skeleton.offsets, dtype=np.float64)[None])[1][0, :, 1]
+    y = _fk_sites(skeleton, np.asarray(skeleton.rest_rotations(jnp.float64))[None], np.asarray(skeleton.offsets)[None],
+                  skeleton.names + skeleton.end_site_names)[0][0, :, 1]
     return float(y.max() - y.min())
 
 
