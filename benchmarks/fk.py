@@ -171,15 +171,13 @@ def _pin_inputs(run: Runner, problem: Problem, b: int) -> tuple[int, list, int]:
     return n, list(pinocchio_peer.configurations(problem.quats[:n], problem.trans[:n, 0])), min(n, _ACCURACY_SAMPLES)
 
 
-def _bench(config, name: str, title: str, description: str, label: str, batches: Sequence[int],
-           targets: list[Target], body: Callable) -> list[Table]:
-    table = Table(name, title, description, label, targets=targets)
+def _problem(config, table: Table, batch: int) -> Problem | None:
+    """The benchmark problem with ``batch`` poses, or ``None`` with ``table`` skipped (the BVH file is missing)."""
     path = config.data_file(CLIP)
     if isinstance(path, str):
         table.skipped = path
-    else:
-        body(Runner(config, table), Problem(path, max(batches)), sorted(config.dtypes, key=lambda d: d != "float64"))
-    return [table]
+        return None
+    return Problem(path, batch)
 
 _FK_REF = "jaxanim (quaternions)"
 _PIN_FK = "Pinocchio forwardKinematics"
@@ -196,42 +194,43 @@ def run_fk(config) -> list[Table]:
         "Site positions (file units, |p| ≤ ~30) against jaxanim float64 with quaternion input (\"reference\").")
     targets = [Target("FK ≤ 0.5 µs per character at batch 4096 in float64", sel(_FK_REF, "float64", 4096), 0.5),
                Target("FK compile ≤ 2 s (jaxanim rows)", sel("jaxanim"), 2.0, "compile", worst=True)]
-
-    def body(run: Runner, problem: Problem, dtypes: list[str]) -> None:
-        skel64 = problem.skeleton
-        ref = _Reference(lambda: _outputs(jax.jit(jax.vmap(functools.partial(forward_kinematics, skel64)))(
-            *problem.jax_inputs(jnp.float64, max(batches)))))
-        run.table.notes.extend(_fk_validation_notes(run.config, problem))
-        pin = pinocchio(run, skel64, _PIN_FK)
-        for dtype in dtypes:
-            skel = _cast(skel64, dtype)
-            naive = jax.vmap(functools.partial(naive_fk, skel))
-            for b in batches:
-                q_in, m_in = problem.jax_inputs(dtype, b), problem.jax_inputs(dtype, b, matrices=True)
-                e = lambda out, b=b: _max_err(zip(_outputs(out), ref.get(b)))  # noqa: E731
-                ours = lambda: jax.vmap(functools.partial(forward_kinematics, skel))  # noqa: E731
-                np_args = (skel64.parents, skel64.end_site_parents, np.asarray(skel64.end_site_offsets, dtype),
-                           problem.mats[:b].astype(dtype), problem.trans[:b].astype(dtype))
-                for impl, fn, args, acc, n, note in (
-                        (_FK_REF, ours(), q_in, (lambda out, b=b: ref.record(b, *_outputs(out)))
-                         if dtype == "float64" else e, None, "jit(vmap(forward_kinematics)), wxyz [B,31,4]"),
-                        ("jaxanim (matrices)", ours(), m_in, e, None, "jit(vmap(forward_kinematics)), [B,31,3,3]"),
-                        ("naive JAX", naive, m_in, e, None,
-                         "jit(vmap(naive_fk)): Python loop, one matmul per joint, [B,31,3,3]"),
-                        ("numpy", numpy_peer.forward_kinematics, np_args, e, b,
-                         "vectorized over the batch, loop over joints, [B,31,3,3]")):
-                    run.add(impl, dtype, b, lambda: _row(run, impl, fn, args, dtype, b, acc, note, n),
-                            peer=not impl.startswith("jaxanim"))
-                if pin is not None and dtype == dtypes[0]:
-                    n, qs, k = _pin_inputs(run, problem, b)
-                    acc = lambda _, b=b: _max_err(zip(pinocchio_peer.positions(pin, qs[:k]),  # noqa: E731
-                                                      (a[:k] for a in ref.get(b))))
-                    run.add(_PIN_FK, "float64", b, lambda: _row(
-                        run, _PIN_FK, pinocchio_peer.fk_loop, (pin, qs), "float64", b, acc,
-                        "Python loop over configurations; joints only (oMi), no End Sites", n), peer=True)
-
-    return _bench(config, "fk", "Forward kinematics (31-joint CMU skeleton)", description,
-                  "max abs err vs jaxanim f64", batches, targets, body)
+    table = Table("fk", "Forward kinematics (31-joint CMU skeleton)", description, "max abs err vs jaxanim f64",
+                  targets=targets)
+    if (problem := _problem(config, table, max(batches))) is None:
+        return [table]
+    run, dtypes = Runner(config, table), sorted(config.dtypes, key=lambda d: d != "float64")
+    skel64 = problem.skeleton
+    ref = _Reference(lambda: _outputs(jax.jit(jax.vmap(functools.partial(forward_kinematics, skel64)))(
+        *problem.jax_inputs(jnp.float64, max(batches)))))
+    table.notes.extend(_fk_validation_notes(config, problem))
+    pin = pinocchio(run, skel64, _PIN_FK)
+    for dtype in dtypes:
+        skel = _cast(skel64, dtype)
+        naive = jax.vmap(functools.partial(naive_fk, skel))
+        for b in batches:
+            q_in, m_in = problem.jax_inputs(dtype, b), problem.jax_inputs(dtype, b, matrices=True)
+            e = lambda out, b=b: _max_err(zip(_outputs(out), ref.get(b)))  # noqa: E731
+            ours = lambda: jax.vmap(functools.partial(forward_kinematics, skel))  # noqa: E731
+            np_args = (skel64.parents, skel64.end_site_parents, np.asarray(skel64.end_site_offsets, dtype),
+                       problem.mats[:b].astype(dtype), problem.trans[:b].astype(dtype))
+            for impl, fn, args, acc, n, note in (
+                    (_FK_REF, ours(), q_in, (lambda out, b=b: ref.record(b, *_outputs(out)))
+                     if dtype == "float64" else e, None, "jit(vmap(forward_kinematics)), wxyz [B,31,4]"),
+                    ("jaxanim (matrices)", ours(), m_in, e, None, "jit(vmap(forward_kinematics)), [B,31,3,3]"),
+                    ("naive JAX", naive, m_in, e, None,
+                     "jit(vmap(naive_fk)): Python loop, one matmul per joint, [B,31,3,3]"),
+                    ("numpy", numpy_peer.forward_kinematics, np_args, e, b,
+                     "vectorized over the batch, loop over joints, [B,31,3,3]")):
+                run.add(impl, dtype, b, lambda: _row(run, impl, fn, args, dtype, b, acc, note, n),
+                        peer=not impl.startswith("jaxanim"))
+            if pin is not None and dtype == dtypes[0]:
+                n, qs, k = _pin_inputs(run, problem, b)
+                acc = lambda _, b=b: _max_err(zip(pinocchio_peer.positions(pin, qs[:k]),  # noqa: E731
+                                                  (a[:k] for a in ref.get(b))))
+                run.add(_PIN_FK, "float64", b, lambda: _row(
+                    run, _PIN_FK, pinocchio_peer.fk_loop, (pin, qs), "float64", b, acc,
+                    "Python loop over configurations; joints only (oMi), no End Sites", n), peer=True)
+    return [table]
 
 
 def _outputs(out) -> tuple:  # what FK's accuracy is judged on
@@ -281,31 +280,32 @@ def run_jacobian(config) -> list[Table]:
              ("jacrev of jaxanim FK", jax.jacrev, None, True, "jit(vmap(jacrev(perturbed jaxanim FK)))"),
              ("jacfwd of naive FK", jax.jacfwd, naive_fk, True, "jit(vmap(jacfwd(perturbed naive_fk)))"),
              ("jacrev of naive FK", jax.jacrev, naive_fk, True, "jit(vmap(jacrev(perturbed naive_fk)))")]
-
-    def body(run: Runner, problem: Problem, dtypes: list[str]) -> None:
-        skel64 = problem.skeleton
-        ref = _Reference(lambda: (jax.jit(jax.vmap(lambda q, t: autodiff_jacobian(skel64, q, t, sites)))(
-            *problem.jax_inputs(jnp.float64, max(batches))),))
-        pin = pinocchio(run, skel64, _PIN_JAC)
-        for dtype in dtypes:
-            skel = _cast(skel64, dtype)
-            for b in batches:
-                args = problem.jax_inputs(dtype, b)
-                for impl, jac, fk, peer, note in impls:
-                    fn = (jax.vmap(lambda q, t: jacobian(skel, q, t, sites)) if jac is None else
-                          jax.vmap(functools.partial(autodiff_jacobian, skel, sites=sites, jac=jac, fk=fk)))
-                    acc = ((lambda out, b=b: ref.record(b, out)) if impl == _JAC_REF and dtype == "float64" else
-                           (lambda out, b=b: _max_err([(out, ref.get(b)[0])])))
-                    run.add(impl, dtype, b, lambda: _row(run, impl, fn, args, dtype, b, acc, note), peer=peer)
-                if pin is not None and dtype == dtypes[0]:
-                    n, qs, k = _pin_inputs(run, problem, b)
-                    fids = [pin.frame_ids[s] for s in sites]
-                    acc = lambda _, b=b: _max_err([(pinocchio_peer.to_parent_frame_columns(  # noqa: E731
-                        pinocchio_peer.frame_jacobians(pin, qs[:k], fids), problem.mats[:k]), ref.get(b)[0][:k])])
-                    run.add(_PIN_JAC, "float64", b, lambda: _row(
-                        run, _PIN_JAC, pinocchio_peer.jacobian_loop, (pin, qs, fids), "float64", b, acc, "Python "
-                        "loop: computeJointJacobians + 5 × getFrameJacobian; columns converted for the check", n),
-                        peer=True)
-
-    return _bench(config, "jacobian", "Jacobian of 5 end effectors (31-joint CMU skeleton)", description,
-                  "max abs err vs jacfwd f64", batches, targets, body)
+    table = Table("jacobian", "Jacobian of 5 end effectors (31-joint CMU skeleton)", description,
+                  "max abs err vs jacfwd f64", targets=targets)
+    if (problem := _problem(config, table, max(batches))) is None:
+        return [table]
+    run, dtypes = Runner(config, table), sorted(config.dtypes, key=lambda d: d != "float64")
+    skel64 = problem.skeleton
+    ref = _Reference(lambda: (jax.jit(jax.vmap(lambda q, t: autodiff_jacobian(skel64, q, t, sites)))(
+        *problem.jax_inputs(jnp.float64, max(batches))),))
+    pin = pinocchio(run, skel64, _PIN_JAC)
+    for dtype in dtypes:
+        skel = _cast(skel64, dtype)
+        for b in batches:
+            args = problem.jax_inputs(dtype, b)
+            for impl, jac, fk, peer, note in impls:
+                fn = (jax.vmap(lambda q, t: jacobian(skel, q, t, sites)) if jac is None else
+                      jax.vmap(functools.partial(autodiff_jacobian, skel, sites=sites, jac=jac, fk=fk)))
+                acc = ((lambda out, b=b: ref.record(b, out)) if impl == _JAC_REF and dtype == "float64" else
+                       (lambda out, b=b: _max_err([(out, ref.get(b)[0])])))
+                run.add(impl, dtype, b, lambda: _row(run, impl, fn, args, dtype, b, acc, note), peer=peer)
+            if pin is not None and dtype == dtypes[0]:
+                n, qs, k = _pin_inputs(run, problem, b)
+                fids = [pin.frame_ids[s] for s in sites]
+                acc = lambda _, b=b: _max_err([(pinocchio_peer.to_parent_frame_columns(  # noqa: E731
+                    pinocchio_peer.frame_jacobians(pin, qs[:k], fids), problem.mats[:k]), ref.get(b)[0][:k])])
+                run.add(_PIN_JAC, "float64", b, lambda: _row(
+                    run, _PIN_JAC, pinocchio_peer.jacobian_loop, (pin, qs, fids), "float64", b, acc, "Python "
+                    "loop: computeJointJacobians + 5 × getFrameJacobian; columns converted for the check", n),
+                    peer=True)
+    return [table]

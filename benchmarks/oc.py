@@ -69,13 +69,6 @@ def make_lq(n: int = 37, m: int = 12, T: int = 100, seed: int = SEED) -> dict[st
                 q=rng.normal(size=n), r=rng.normal(size=m), x0=rng.normal(size=n), T=T)
 
 
-def _lq_problem(d: dict[str, np.ndarray]):
-    tile = lambda z: jnp.asarray(np.broadcast_to(z, (d["T"],) + z.shape), jnp.float64)  # noqa: E731
-    return LQProblem(A=tile(d["A"]), B=tile(d["B"]), Q=tile(d["Q"]), R=tile(d["R"]), QT=jnp.asarray(d["Q"]),
-                     x0=jnp.asarray(d["x0"]), S=tile(d["N"].T), q=tile(d["q"]), r=tile(d["r"]), qT=jnp.asarray(d["q"]),
-                     c=tile(d["f"]), constant=jnp.zeros((), jnp.float64))
-
-
 def make_dare_systems(count: int, n: int = 12, m: int = 4, seed: int = SEED) -> tuple[np.ndarray, ...]:
     """``count`` seeded stabilizable DARE problems ``(A, B, Q, R)`` (see the table's description)."""
     rng = np.random.default_rng(seed)
@@ -154,23 +147,22 @@ def _jax_solve(run: Runner, impl: str, fn: Callable, args: tuple, b: int, accura
 
 def _unicycle_table(config, sz: OCSizes) -> Table:
     T = sz.unicycle_T
-    (l0, l1), (h0, h1) = UNICYCLE_BOUNDS
+    lo, hi = (np.asarray(b, np.float64) for b in UNICYCLE_BOUNDS)
     own, croc = sel(("jaxanim ilqr", "jaxanim ddp"), exact=True), sel(f"{_CROC} SolverDDP", exact=True)
     table = Table(
         "oc-unicycle", f"Optimal control: unicycle, T = {T}, one solve (Crocoddyl's ActionModelUnicycle)",
         accuracy_label="rel. cost diff vs Crocoddyl (box rows: BoxDDP)", description=(
             f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: dt = 0.1, cost 0.5 "
             f"(10² |x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls. Box "
-            f"rows: u ∈ [{l0}, {h0}] × [{l1}, {h1}] (which the unbounded optimum leaves), `bounds=` vs `u_lb/u_ub` + "
-            "SolverBoxDDP. "
-            f"Batch 1, float64, ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default tolerances (`jax.jit`, compiled "
-            "ahead of time), Crocoddyl th_stop 1e-9 (`solver.solve`, one call per sample, spread in the notes). "
-            "Crocoddyl uses first derivatives of the dynamics (as jaxanim ilqr); jaxanim ddp also second ones."),
+            f"rows: u ∈ [{lo[0]}, {hi[0]}] × [{lo[1]}, {hi[1]}] (which the unbounded optimum leaves), `bounds=` vs "
+            f"`u_lb/u_ub` + SolverBoxDDP. Batch 1, float64, ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default "
+            "tolerances (`jax.jit`, compiled ahead of time), Crocoddyl th_stop 1e-9 (`solver.solve`, one call per "
+            "sample, spread in the notes). Crocoddyl uses first derivatives of the dynamics (as jaxanim ilqr); jaxanim "
+            "ddp also second ones."),
         targets=[Target("one unicycle solve within 2x of Crocoddyl SolverDDP, fastest samples (speedup ≥ 0.5x)",
                         own, 0.5, "min_us", versus=croc),
                  Target("the same, medians (speedup ≥ 0.5x)", own, 0.5, "us", versus=croc)])
     run = Runner(config, table)
-    lo, hi = (np.asarray(b, np.float64) for b in UNICYCLE_BOUNDS)
     prob = problems.unicycle(T=T, dtype=jnp.float64)
     ref: dict[bool, float] = {}  # per boxed: the first row's cost (Crocoddyl SolverDDP if it ran)
 
@@ -212,7 +204,10 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
 def _lqr_table(config, sz: OCSizes) -> Table:
     n, m, T = sz.lqr_n, sz.lqr_m, sz.lqr_T
     d = make_lq(n, m, T)
-    lq = _lq_problem(d)
+    tile = lambda z: jnp.asarray(np.broadcast_to(z, (T,) + z.shape), jnp.float64)  # noqa: E731
+    lq = LQProblem(A=tile(d["A"]), B=tile(d["B"]), Q=tile(d["Q"]), R=tile(d["R"]), QT=jnp.asarray(d["Q"]),
+                   x0=jnp.asarray(d["x0"]), S=tile(d["N"].T), q=tile(d["q"]), r=tile(d["r"]), qT=jnp.asarray(d["q"]),
+                   c=tile(d["f"]), constant=jnp.zeros((), jnp.float64))
     table = Table(
         "oc-lqr", f"Optimal control: LQ problem, {n} states × {m} inputs, T = {T}",
         accuracy_label="rel. cost diff / max |Δu| vs solvers.lqr", description=(
@@ -321,21 +316,20 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
     batches = config.batches_for(sz.swing_batches)
     big = max(batches)
     x0s = initial_states(name, big)
-    start = _STARTS[name]
     croc = sel(f"{_CROC} SolverDDP", exact=True)
     table = Table(
         f"oc-{name}", f"Optimal control: batched {name.replace('_', '-')} swing-ups, T = {T}",
         accuracy_label=f"final costs agreeing with Crocoddyl DDP (≤ {AGREE_RTOL:g} rel.)", description=(
             f"`solvers.problems.{name}()` (explicit Euler, dt = {float(prob.args['dt']):g}, quadratic cost to upright) "
-            f"from {big} seeded starts ({start}), zero controls, ≤ {max_steps} iterations, default tolerances. "
-            "jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` starts, adaptive and `fixed_steps=True` (a "
-            f"scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of `solve` on Python action "
+            f"from {big} seeded starts ({_STARTS[name]}), zero controls, ≤ {max_steps} iterations, default "
+            "tolerances. jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` starts, adaptive and "
+            f"`fixed_steps=True` (a scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of "
+            "`solve` over the first starts within the row budget (its success counts those only) on Python action "
             "models with the same dynamics, cost and analytic first derivatives of the dynamics (like with like: "
-            "jaxanim ilqr; jaxanim ddp also uses second ones), on the first starts within the row budget (its "
-            f"success counts those only). **Success**: status successful and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. "
-            "Accuracy: of the problems both this row and Crocoddyl SolverDDP solved, how many final costs agree to "
-            f"{AGREE_RTOL:g} relative (median relative difference; local optima may differ). jaxanim notes: "
-            "iterations mean / max, mean cost, success on the starts Crocoddyl SolverDDP ran."),
+            "jaxanim ilqr; jaxanim ddp also uses second ones). **Success**: status successful and |θ_T − π| < "
+            f"{UPRIGHT_TOLERANCE} rad. Accuracy: of the problems both this row and Crocoddyl SolverDDP solved, how "
+            f"many final costs agree to {AGREE_RTOL:g} relative (median relative difference; local optima may "
+            "differ)."),
         targets=[Target(f"batched DDP on {big} swing-ups ≥ 20x the Crocoddyl SolverDDP loop's throughput (jaxanim "
                         "ddp: second-order dynamics; Crocoddyl: first-order)", sel("jaxanim ddp", batch=big), 20.0,
                         versus=croc),

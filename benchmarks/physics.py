@@ -58,8 +58,7 @@ class PhysicsSizes:
 
 
 def clearance(state, body, local, radius) -> jax.Array:
-    """The smallest signed distance to the ground (m; negative: penetrating) of the contact points (``body``
-    indices, ``local`` offsets, ``radius``)."""
+    """The least signed distance (m; negative: penetrating) to the ground of contact points ``body, local, radius``."""
     return jnp.min(state.position[body, 1] + rot.quat_apply(state.orientation[body], local)[:, 1] - radius)
 
 
@@ -162,16 +161,15 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
         return mp.MujocoSim(ch0.mjcf(DT), ch0.char.model.bodies.names, ch0.root, root_velocities(max(batches)))
 
     @functools.cache
-    def mj_reference(nstep: int) -> np.ndarray | None:  # character 0's body positions after nstep MuJoCo C steps
-        try:
-            mujoco().step_loop(nstep, count=1)
-        except PeerUnavailable:
-            return None
+    def mj_reference(nstep: int) -> np.ndarray:  # character 0's body positions after nstep MuJoCo C steps
+        mujoco().step_loop(nstep, count=1)
         return mujoco().positions(0)
 
     def diff(pos, nstep: int) -> float | str:
-        ref = mj_reference(nstep)
-        return "n/a (no MuJoCo)" if ref is None else float(np.max(np.abs(np.asarray(pos) - ref)))
+        try:
+            return float(np.max(np.abs(np.asarray(pos) - mj_reference(nstep))))
+        except PeerUnavailable:
+            return "n/a (no MuJoCo)"
 
     def mj_loop_row(b: int) -> Row:
         count = min(b, config.loop_cap)
@@ -186,8 +184,7 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
                        note=f"nthread = {nthread}, persistent C++ thread pool")
 
     def mjx_row(b: int) -> Row:
-        fn, args = mp.mjx_rollout(mujoco(), sz.mjx_steps, b)
-        qpos, tm, comp = run.jax(fn, *args)
+        qpos, tm, comp = run.jax(*mp.mjx_rollout(mujoco(), sz.mjx_steps, b))
         return run.row(_MJX, "float64", b, tm, b * sz.mjx_steps, comp, diff(
             mujoco().positions(qpos=np.asarray(qpos[0])), sz.mjx_steps), note=f"{sz.mjx_steps} steps per call, CPU")
 

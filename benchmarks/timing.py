@@ -66,9 +66,9 @@ def _call_blocking(fn: Callable[..., Any], args: tuple, number: int) -> float:
 
 def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 7, warmup: int = 2, min_sample_s: float = 2e-3,
               max_total_s: float | None = None, number: int | None = None) -> Timing:
-    """Median and min seconds of ``fn(*args)`` after ``warmup`` calls (one if it takes over a second);
-    calls faster than ``min_sample_s`` run ``number`` times per sample (calibrated unless given);
-    sampling stops past ``max_total_s`` once 3 samples (or ``repeats``) were taken."""
+    """Median and min seconds of ``fn(*args)`` after ``warmup`` calls (one if it takes over a second); calls faster
+    than ``min_sample_s`` run ``number`` times per sample (calibrated unless given); sampling stops past
+    ``max_total_s`` once 3 samples (or ``repeats``) were taken."""
     if repeats < 1:
         raise ValueError(f"repeats: expected >= 1, got {repeats}")
     once = math.inf

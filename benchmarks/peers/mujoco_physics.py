@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -94,8 +95,8 @@ class MujocoSim:
         return d.xpos[self.ids].copy()
 
 
-def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple]:
-    """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
+def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, Any]:
+    """``(jax.jit(jax.vmap(rollout)), batched mjx.Data)``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
     character over the first ``batch`` characters' initial states (cast to the dtypes ``mjx.step``
     returns: under x64 ``put_data`` makes int32 contact indices that ``step`` returns as int64)."""
     mjx = load_mjx()
@@ -113,4 +114,4 @@ def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple
     def one(d):
         return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), d, None, length=nstep)[0].qpos
 
-    return jax.jit(jax.vmap(one)), (dx,)
+    return jax.jit(jax.vmap(one)), dx

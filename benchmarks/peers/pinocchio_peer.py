@@ -1,7 +1,6 @@
-"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model`` (free flyer root, spherical joints
-at their OFFSETs, a ``JOINT`` frame per joint, an ``OP_FRAME`` per End Site), timed loops and CLIK. Pinocchio's
-``q`` stores quaternions xyzw and its velocities are in local frames (``R <- R exp(w)``); jaxanim's columns are
-parent-frame increments (``R <- exp(d) R = R exp(R^T d)``, :func:`to_parent_frame_columns`)."""
+"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model`` (free flyer root, spherical joints at
+their OFFSETs, a ``JOINT`` frame per joint, an ``OP_FRAME`` per End Site), timed loops and CLIK. Its ``q`` stores
+quaternions xyzw, its velocities are in local frames (``R <- R exp(w)``; jaxanim's columns: ``R <- exp(d) R``)."""
 
 from __future__ import annotations
 
@@ -112,10 +111,9 @@ def to_parent_frame_columns(jac: np.ndarray, local_rotations: np.ndarray) -> np.
 def clik_solve(ps: PinocchioSkeleton, q0: np.ndarray, frame_ids: Sequence[int], positions: np.ndarray,
                rotations: np.ndarray, *, damping: float, max_iterations: int, position_tolerance: float,
                orientation_tolerance: float) -> tuple[np.ndarray, int, bool]:
-    """Damped least-squares IK (CLIK) from ``q0 [nq]`` to world targets ``positions [frames, 3]`` / ``rotations
-    [frames, 3, 3]``: per iteration the world-axes errors ``e = [p_k - p(q); log3(R_k R(q)^T)]`` of every frame,
-    stacked ``LOCAL_WORLD_ALIGNED`` Jacobians ``J`` and ``q = integrate(q, J^T (J J^T + lambda I)^{-1} e)``, until
-    every error is under its tolerance. Returns ``(q, iterations, converged)``."""
+    """``(q, iterations, converged)`` of damped least-squares IK (CLIK) from ``q0 [nq]`` to world targets
+    ``positions [frames, 3]`` / ``rotations [frames, 3, 3]``: ``q = integrate(q, J^T (J J^T + lambda I)^{-1} e)``,
+    ``e = [p_k - p(q); log3(R_k R(q)^T)]`` in world axes, ``J`` ``LOCAL_WORLD_ALIGNED``, until all errors pass."""
     pin, model, data = ps.pin, ps.model, ps.data
     lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
     n = len(frame_ids)
