@@ -74,8 +74,7 @@ class BenchConfig:
 
 @dataclasses.dataclass(frozen=True)
 class BenchmarkSpec:
-    """A registered benchmark: its command-line name, ``"module:function"`` of its
-    ``run(config) -> list[Table]`` and one line for ``--help``."""
+    """A registered benchmark: command-line name, ``"module:function"`` of its ``run(config)``, ``--help`` line."""
 
     name: str
     target: str

@@ -188,10 +188,10 @@ def run_fk(config) -> list[Table]:
     batches = config.batches_for(FK_BATCHES)
     description = (
         f"Global rotations, joint and End Site positions of a batch of poses of the 31-joint CMU skeleton (`{CLIP}`, "
-        f"7 End Sites), one call per batch. Poses: clip frame `b mod 300`, every local rotation right-multiplied by a "
-        f"random rotation of up to ±{MAX_ANGLE_DEG:g}° about each axis (seed {SEED}), clip translations. µs / char = "
-        "time per call / batch (per configuration for capped Python loops). Accuracy: max abs error of joint + End "
-        "Site positions (file units, |p| ≤ ~30) against jaxanim float64 with quaternion input (\"reference\").")
+        f"7 End Sites): clip frame `b mod 300`, every local rotation right-multiplied by a random rotation of up to "
+        f"±{MAX_ANGLE_DEG:g}° about each axis (seed {SEED}), clip translations. µs / char = time per call / batch (per "
+        "configuration for capped Python loops). Accuracy: max abs error of joint + End Site positions (file units, "
+        "|p| ≤ ~30) against jaxanim float64 with quaternion input (\"reference\").")
     targets = [Target("FK ≤ 0.5 µs per character at batch 4096 in float64", sel(_FK_REF, "float64", 4096), 0.5),
                Target("FK compile ≤ 2 s (jaxanim rows)", sel("jaxanim"), 2.0, "compile", worst=True)]
     table = Table("fk", "Forward kinematics (31-joint CMU skeleton)", description, "max abs err vs jaxanim f64",
@@ -271,8 +271,8 @@ def run_jacobian(config) -> list[Table]:
         "of every local rotation in its parent frame (`R_j <- exp(d_j) R_j`). The autodiff rows differentiate FK "
         "(jaxanim's `forward_kinematics` or the naive loop) after that perturbation (angular rows `vee(dR R^T)`). "
         "Accuracy: max abs difference from `jax.jacfwd` of jaxanim's FK in float64 (\"reference\"); Pinocchio's "
-        "columns (root twist in the root frame, joint angular velocities in the joint frames) are converted to these "
-        "for the check only, its timed loop is `computeJointJacobians` + 5 × `getFrameJacobian(LOCAL_WORLD_ALIGNED)`.")
+        "`LOCAL_WORLD_ALIGNED` columns (root twist in the root frame, joint angular velocities in the joint frames) "
+        "are converted to these for the check only.")
     targets = [Target("Jacobian of 5 end effectors ≤ 2 µs per character at batch 1024 in float64",
                       sel("jaxanim", "float64", 1024, exact=True), 2.0)]
     impls = [("jaxanim", None, None, False, "jit(vmap(jacobian)), analytic"),

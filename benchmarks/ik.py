@@ -185,10 +185,6 @@ def _ik(solver) -> dict:
     return dict(solve=solve_ik, solver=solver, regularization=REGULARIZATION)
 
 
-def _optx(dtype, name: str) -> dict:
-    return _ik(solvers.OptimistixSolver(getattr(optx, name)(**_tol(dtype)), max_steps=MAX_STEPS))
-
-
 def _jaxopt(dtype) -> dict:
     with warnings.catch_warnings():  # jaxopt announces on import that it is unmaintained
         warnings.simplefilter("ignore")
@@ -211,9 +207,10 @@ _METHODS = (
     (_LM_FIXED, lambda d, p: _ik(solvers.LevenbergMarquardt(**_tol(d), max_steps=FIXED_STEPS, fixed_steps=True)),
      f"solvers.LevenbergMarquardt(fixed_steps=True): lax.scan of {FIXED_STEPS} iterations (iterations = steps "
      "until converged; finished problems are frozen)", False, None),
-    ("optimistix LM", lambda d, p: _optx(d, "LevenbergMarquardt"),
+    ("optimistix LM", lambda d, p: _ik(solvers.OptimistixSolver(optx.LevenbergMarquardt(**_tol(d)),
+                                                                max_steps=MAX_STEPS)),
      f"OptimistixSolver(optx.LevenbergMarquardt), ≤ {MAX_STEPS} steps, {_TOL}", True, _SLOW_MAX_BATCH),
-    ("optimistix GN", lambda d, p: _optx(d, "GaussNewton"),
+    ("optimistix GN", lambda d, p: _ik(solvers.OptimistixSolver(optx.GaussNewton(**_tol(d)), max_steps=MAX_STEPS)),
      f"OptimistixSolver(optx.GaussNewton) (default linear solver), ≤ {MAX_STEPS} steps, {_TOL}", True,
      _SLOW_MAX_BATCH),
     ("jaxopt LM", lambda d, p: _jaxopt(d), "JaxoptSolver('LevenbergMarquardt'): Cholesky, |J^T r| ≤ 1e-8 (f64) / "
@@ -307,13 +304,12 @@ def run_ik(config) -> list[Table]:
         f"uniformly at random and translated by N(0, {ROOT_TRANSLATION_STD}²) per axis, seed {SEED}), its targets "
         f"the world position and orientation of {len(EFFECTORS)} effectors ({', '.join(f'`{s}`' for s in EFFECTORS)})."
         " Every solve starts from the rest pose; `solve_ik` rows use `regularization=0` and the tolerances in their "
-        "notes (CLIK stops at the success thresholds, CCD at half of them). Rows are `jax.jit(jax.vmap(solve))` over "
-        "the batch, compiled ahead of time; Pinocchio CLIK is a Python loop over problems (float64). µs / char = µs "
-        f"per problem. **Success**: every position error < {POSITION_TOLERANCE_REL:g} × skeleton height "
-        f"({problems.height:.2f} units, so {problems.position_tolerance:.4f}) and every orientation error < "
-        f"{ORIENTATION_TOLERANCE} rad, from an independent float64 numpy FK of the returned poses (not the solvers' "
-        "flags). Error column: 98th percentile over problems of each problem's worst position error (units) / "
-        "orientation error (rad). Notes: iterations (solver steps; CCD sweeps; CLIK updates).")
+        "notes. Rows are `jax.jit(jax.vmap(solve))` over the batch; Pinocchio CLIK is a Python loop over problems "
+        f"(float64). µs / char = µs per problem. **Success**: every position error < {POSITION_TOLERANCE_REL:g} × "
+        f"skeleton height ({problems.height:.2f} units, so {problems.position_tolerance:.4f}) and every orientation "
+        f"error < {ORIENTATION_TOLERANCE} rad, from an independent float64 numpy FK of the returned poses (not the "
+        "solvers' flags). Error column: 98th percentile over problems of each problem's worst position error (units) "
+        "/ orientation error (rad). Notes: iterations (solver steps; CCD sweeps; CLIK updates).")
     run = Runner(config, table)
     pin = pinocchio(run, skel, _PIN)
     dtypes = sorted(config.dtypes, key=lambda d: d != "float64")

@@ -109,13 +109,10 @@ def _acc(a: float | str | None) -> str:
     return _DASH if a is None else a if isinstance(a, str) else "0" if a == 0 else f"{a:.2e}"
 
 
-def _best_peers(rows: Sequence[Row]) -> dict[int, Row]:
-    best: dict[int, Row] = {}
-    for r in rows:
-        if r.measured and r.is_peer and r.us_per_char is not None and (
-                r.batch not in best or r.us_per_char < best[r.batch].us_per_char):
-            best[r.batch] = r
-    return best
+def _best_peers(rows: Sequence[Row]) -> dict[int, Row]:  # the fastest peer per batch (the first of a tie)
+    peers = sorted([r for r in rows if r.measured and r.is_peer and r.us_per_char is not None],
+                   key=lambda r: r.us_per_char)
+    return {r.batch: r for r in reversed(peers)}
 
 
 def _notes_cell(r: Row) -> str:

@@ -4,6 +4,7 @@ first derivatives of the dynamics ``Fx, Fu``, all that Crocoddyl's DDP solvers u
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -24,19 +25,18 @@ def load_crocoddyl():
         raise PeerUnavailable(f"crocoddyl {getattr(croc, '__version__', '?')} has no ActionModelAbstract")
     return croc
 
-_CLASSES: dict[str, type] = {}
-
 
 def python_model_class(name: str) -> type:
     """The Python action-model class ``name`` (``"pendulum"``, ``"cart_pole"``, ``"unicycle"``), built on
     first use; ``cls(args, terminal=False)`` takes :mod:`solvers.problems`' ``args`` as float64 numpy
     (``dt``, ``goal``, ``Q``, ``R``, ``QT``, physical constants); a terminal model uses ``QT``, no ``u``."""
-    if name not in _CLASSES:
-        _CLASSES.update(_build_classes(load_crocoddyl()))
-    return _CLASSES[name]
+    return _classes()[name]
 
 
-def _build_classes(croc) -> dict[str, type]:
+@functools.cache
+def _classes() -> dict[str, type]:
+    croc = load_crocoddyl()
+
     class _Quadratic(croc.ActionModelAbstract):
         """Cost ``0.5 (x-g)'diag(W)(x-g) + 0.5 u'diag(R)u``, dynamics ``x + dt xdot(x, u)`` (``jac``: its
         derivatives ``(d xdot / dx, d xdot / du)``), both defined by the subclasses."""
@@ -51,13 +51,9 @@ def _build_classes(croc) -> dict[str, type]:
             self._Lxx, self._Luu = np.diag(self.W), np.diag(self.Rw)
 
         def calc(self, data, x, u=None):
-            dx = x - self.goal
-            if u is None or self.terminal:
-                data.xnext = x
-                data.cost = 0.5 * float(dx @ (self.W * dx))
-                return
-            data.xnext = x + self.dt * self.xdot(x, u)
-            data.cost = 0.5 * float(dx @ (self.W * dx) + u @ (self.Rw * u))
+            dx, running = x - self.goal, u is not None and not self.terminal
+            data.xnext = x + self.dt * self.xdot(x, u) if running else x
+            data.cost = 0.5 * float(dx @ (self.W * dx) + (u @ (self.Rw * u) if running else 0.0))
 
         def calcDiff(self, data, x, u=None):
             dx = x - self.goal
