@@ -164,8 +164,7 @@ def evaluate(skeleton, targets, rotations, translations) -> IKEvaluation:
 
 
 def batched_solver(skeleton, solve: Callable | None = None, **kwargs) -> Callable:
-    """A fresh ``jax.jit(jax.vmap(solve(skeleton, targets, rotations, translations, **kwargs)))``;
-    ``solve`` defaults to :func:`jaxanim.ik.solve_ik`."""
+    """A fresh ``jax.jit(jax.vmap(...))`` of ``solve(skeleton, targets, q, t, **kwargs)`` (default ``solve_ik``)."""
     solve = solve_ik if solve is None else solve
     return jax.jit(jax.vmap(lambda targets, q, t: solve(skeleton, targets, q, t, **kwargs)))
 

@@ -113,8 +113,7 @@ class Runner:
         self._failed: dict[tuple[str, str | None], str | None] = {}
 
     def jax(self, fn: Callable[..., Any], *args: Any) -> tuple[Any, Timing, float]:
-        """Compile ``jax.jit(fn)`` ahead of time, call it once (its output is returned) and time it.
-        Returns ``(output, timing, compile seconds)``."""
+        """``(output, timing, compile seconds)`` of ``jax.jit(fn)``, compiled ahead of time, called once and timed."""
         cs = compile_time(fn if hasattr(fn, "lower") else jax.jit(fn), *args)
         t0 = time.perf_counter()
         out = jax.block_until_ready(cs.compiled(*args))

@@ -23,8 +23,7 @@ def load_mujoco():
 
 
 def load_mjx():
-    """``mujoco.mjx``, or :class:`PeerUnavailable` (its import prints warnings about the optional
-    ``warp`` backend on machines without it; they are swallowed here)."""
+    """``mujoco.mjx``, or :class:`PeerUnavailable`; its import's warnings about the optional ``warp`` are muted."""
     load_mujoco()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         try:
@@ -84,8 +83,7 @@ class MujocoSim:
         return mj_rollout.rollout(self.model, pool, self.initial_states[:count], nstep=nstep, persistent_pool=True)[0]
 
     def positions(self, i: int = 0, *, state: np.ndarray | None = None, qpos: np.ndarray | None = None) -> np.ndarray:
-        """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, or of a full-physics
-        ``state`` vector, or at ``qpos`` (e.g. MJX's result)."""
+        """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, of a physics ``state`` or at ``qpos``."""
         d = self.datas[i] if state is None and qpos is None else self.mujoco.MjData(self.model)
         if state is not None:
             self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
