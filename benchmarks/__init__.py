@@ -28,10 +28,9 @@ def default_data_dir() -> pathlib.Path:
 
 @dataclasses.dataclass(frozen=True)
 class BenchConfig:
-    """Settings shared by every benchmark of one run: ``quick`` (smoke test), the ``dtypes``, a
-    ``batches`` override, timed samples (``repeats``) after ``warmup`` calls within ``max_row_s`` per
-    row, the most configurations a Python-loop peer runs per timed call (``loop_cap``), the shared
-    data folder, ``only`` (case-insensitive shell patterns of implementations to run) and ``verbose``."""
+    """Settings shared by every benchmark of one run: ``batches`` (overrides every benchmark's), timed samples
+    (``repeats``) after ``warmup`` calls within ``max_row_s`` per row, the most configurations a Python-loop peer
+    runs per timed call (``loop_cap``) and ``only`` the implementations matching a case-insensitive shell pattern."""
 
     quick: bool = False
     dtypes: tuple[str, ...] = ("float32", "float64")

@@ -128,18 +128,15 @@ def _max_err(pairs: Sequence[tuple[Any, np.ndarray]]) -> float:
 
 class _Reference:  # float64 reference outputs per batch: recorded by the reference row, else computed once
     def __init__(self, compute: Callable[[], tuple]):
-        self._compute, self._by_batch, self._full = compute, {}, None
+        self._by_batch = {}
+        self._full = functools.cache(lambda: tuple(np.asarray(a, dtype=np.float64) for a in compute()))
 
     def record(self, batch: int, *arrays: Any) -> str:
         self._by_batch[batch] = tuple(np.asarray(a, dtype=np.float64) for a in arrays)
         return "reference"
 
     def get(self, batch: int) -> tuple[np.ndarray, ...]:
-        if batch in self._by_batch:
-            return self._by_batch[batch]
-        if self._full is None:
-            self._full = tuple(np.asarray(a, dtype=np.float64) for a in self._compute())
-        return tuple(a[:batch] for a in self._full)
+        return self._by_batch.get(batch) or tuple(a[:batch] for a in self._full())
 
 
 def _row(run: Runner, impl: str, fn: Callable, args: tuple, dtype: str, b: int, accuracy: Callable, note: str,
@@ -244,8 +241,7 @@ def _fk_validation_notes(config, problem: Problem) -> list[str]:
         return [f"shared FK reference `{REFERENCE}` not found: the reference check was not run."]
     ref = np.load(path)
     want = (ref["positions"], ref["end_site_positions"])
-    rot = jnp.asarray(problem.motion.rotations, dtype=jnp.float64)
-    tr = jnp.asarray(problem.motion.translations, dtype=jnp.float64)
+    rot, tr = (jnp.asarray(a, dtype=jnp.float64) for a in (problem.motion.rotations, problem.motion.translations))
     out = jax.jit(jax.vmap(functools.partial(forward_kinematics, problem.skeleton)))(rot, tr)
     notes = [f"jaxanim float64 vs the shared reference `{REFERENCE}` ({rot.shape[0]} clip frames): max abs "
              f"position error {_max_err(zip(_outputs(out), want)):.2e}."]
@@ -266,13 +262,12 @@ def run_jacobian(config) -> list[Table]:
     batches = config.batches_for(JACOBIAN_BATCHES)
     sites = JACOBIAN_SITES
     description = (
-        f"Geometric Jacobian `[5, 6, 96]` of {', '.join(f'`{s}`' for s in sites)} on the CMU skeleton, poses of "
-        "`fk`: rows `[linear; angular]` in world axes, columns the root translation then a rotation-vector increment "
-        "of every local rotation in its parent frame (`R_j <- exp(d_j) R_j`). The autodiff rows differentiate FK "
-        "(jaxanim's `forward_kinematics` or the naive loop) after that perturbation (angular rows `vee(dR R^T)`). "
-        "Accuracy: max abs difference from `jax.jacfwd` of jaxanim's FK in float64 (\"reference\"); Pinocchio's "
-        "`LOCAL_WORLD_ALIGNED` columns (root twist in the root frame, joint angular velocities in the joint frames) "
-        "are converted to these for the check only.")
+        f"Geometric Jacobian `[5, 6, 96]` of {', '.join(f'`{s}`' for s in sites)} on the CMU skeleton (poses of `fk`): "
+        "rows `[linear; angular]` in world axes, columns the root translation then a rotation-vector increment of "
+        "every local rotation in its parent frame (`R_j <- exp(d_j) R_j`). Autodiff rows differentiate FK (jaxanim's "
+        "or the naive loop) after that perturbation (angular rows `vee(dR R^T)`). Accuracy: max abs difference from "
+        "`jax.jacfwd` of jaxanim's FK in float64 (\"reference\"); Pinocchio's `LOCAL_WORLD_ALIGNED` columns (root "
+        "twist in the root frame, joint angular velocities in the joint frames) are converted for the check only.")
     targets = [Target("Jacobian of 5 end effectors ≤ 2 µs per character at batch 1024 in float64",
                       sel("jaxanim", "float64", 1024, exact=True), 2.0)]
     impls = [("jaxanim", None, None, False, "jit(vmap(jacobian)), analytic"),

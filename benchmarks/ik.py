@@ -226,9 +226,8 @@ _METHODS = (
 )
 
 
-def _iterations(steps) -> str:
-    s = np.asarray(steps)
-    return f"iterations {s.mean():.1f} / {int(s.max())} (mean / max)"
+def _iterations(steps: np.ndarray) -> str:
+    return f"iterations {steps.mean():.1f} / {int(steps.max())} (mean / max)"
 
 
 def _jax_row(run: Runner, impl: str, make: Callable, note: str, problems: ProblemSet, dtype: str, b: int) -> Row:
@@ -298,17 +297,17 @@ def run_ik(config) -> list[Table]:
         return [table]
     problems = draw_problems(skel, max(batches), SEED)
     table.description = (
-        f"Random reachable targets on the 31-joint CMU skeleton (`{CLIP}`, 96 degrees of freedom): each problem is "
-        f"the FK of a random pose (every joint within ±{MAX_ANGLE_DEG:g}° per axis of the rest pose, the root rotated "
-        f"uniformly at random and translated by N(0, {ROOT_TRANSLATION_STD}²) per axis, seed {SEED}), its targets "
-        f"the world position and orientation of {len(EFFECTORS)} effectors ({', '.join(f'`{s}`' for s in EFFECTORS)})."
-        " Every solve starts from the rest pose; `solve_ik` rows use `regularization=0` and the tolerances in their "
-        "notes. Rows are `jax.jit(jax.vmap(solve))` over the batch; Pinocchio CLIK is a Python loop over problems "
-        f"(float64). µs / char = µs per problem. **Success**: every position error < {POSITION_TOLERANCE_REL:g} × "
-        f"skeleton height ({problems.height:.2f} units, so {problems.position_tolerance:.4f}) and every orientation "
-        f"error < {ORIENTATION_TOLERANCE} rad, from an independent float64 numpy FK of the returned poses (not the "
-        "solvers' flags). Error column: 98th percentile over problems of each problem's worst position error (units) "
-        "/ orientation error (rad). Notes: iterations (solver steps; CCD sweeps; CLIK updates).")
+        f"Random reachable targets on the 31-joint CMU skeleton (`{CLIP}`, 96 degrees of freedom): world positions and "
+        f"orientations of {len(EFFECTORS)} effectors ({', '.join(f'`{s}`' for s in EFFECTORS)}) after FK of a random "
+        f"pose (joints within ±{MAX_ANGLE_DEG:g}° per axis of the rest pose, the root rotated uniformly and translated "
+        f"by N(0, {ROOT_TRANSLATION_STD}²) per axis; seed {SEED}). Solves start from the rest pose; `solve_ik` rows "
+        "use `regularization=0` and the tolerances in their notes. Rows are `jax.jit(jax.vmap(solve))`; Pinocchio "
+        "CLIK is a Python loop (float64). µs / char = µs per problem. **Success**: every position error < "
+        f"{POSITION_TOLERANCE_REL:g} × skeleton height ({problems.height:.2f} units, so "
+        f"{problems.position_tolerance:.4f}) and orientation error < {ORIENTATION_TOLERANCE} rad, by an independent "
+        "float64 numpy FK of the returned poses (not the solvers' flags). Error column: 98th percentile over problems "
+        "of each problem's worst position (units) / orientation (rad) error. Notes: iterations (solver steps; CCD "
+        "sweeps; CLIK updates).")
     run = Runner(config, table)
     pin = pinocchio(run, skel, _PIN)
     dtypes = sorted(config.dtypes, key=lambda d: d != "float64")

@@ -150,13 +150,12 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
     table = Table(
         "oc-unicycle", f"Optimal control: unicycle, T = {T}, one solve (Crocoddyl's ActionModelUnicycle)",
         accuracy_label="rel. cost diff vs Crocoddyl (box rows: BoxDDP)", description=(
-            f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: dt = 0.1, cost 0.5 "
-            f"(10² |x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls. Box "
-            f"rows: u ∈ [{lo[0]}, {hi[0]}] × [{lo[1]}, {hi[1]}] (which the unbounded optimum leaves), `bounds=` vs "
-            f"`u_lb/u_ub` + SolverBoxDDP. Batch 1, float64, ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default "
-            "tolerances (`jax.jit`, compiled ahead of time), Crocoddyl th_stop 1e-9 (`solver.solve`, one call per "
-            "sample, spread in the notes). Crocoddyl uses first derivatives of the dynamics (as jaxanim ilqr); jaxanim "
-            "ddp also second ones."),
+            f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: dt = 0.1, cost 0.5 (10² "
+            f"|x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls; box rows: u "
+            f"∈ [{lo[0]}, {hi[0]}] × [{lo[1]}, {hi[1]}] (which the unbounded optimum leaves), `bounds=` vs `u_lb/u_ub` "
+            f"+ SolverBoxDDP. ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default tolerances (`jax.jit`), Crocoddyl "
+            "th_stop 1e-9 (`solver.solve`, one call per sample, spread in the notes). Crocoddyl uses first "
+            "derivatives of the dynamics (as jaxanim ilqr); jaxanim ddp also second ones."),
         targets=[Target("one unicycle solve within 2x of Crocoddyl SolverDDP, fastest samples (speedup ≥ 0.5x)",
                         own, 0.5, "min_us", versus=croc),
                  Target("the same, medians (speedup ≥ 0.5x)", own, 0.5, "us", versus=croc)])
@@ -209,11 +208,10 @@ def _lqr_table(config, sz: OCSizes) -> Table:
     table = Table(
         "oc-lqr", f"Optimal control: LQ problem, {n} states × {m} inputs, T = {T}",
         accuracy_label="rel. cost diff / max |Δu| vs solvers.lqr", description=(
-            "A seeded time-invariant LQ problem (`benchmarks.oc.make_lq`: A with spectral radius 1.02, cost "
-            "0.5 x'Qx + 0.5 u'Ru + x'N u + q'x + r'u with [[Q, N], [N', R]] positive definite, drift f, terminal "
-            "0.5 x'Qx + q'x), the same matrices in Crocoddyl's `ActionModelLQR`. `solvers.lqr` is the exact Riccati "
-            "solution; iLQR / DDP take one iteration and confirm convergence with a second; Crocoddyl's solvers "
-            "stop after one. float64, one problem per call."))
+            "A seeded time-invariant LQ problem (`benchmarks.oc.make_lq`: A with spectral radius 1.02, cost 0.5 x'Qx "
+            "+ 0.5 u'Ru + x'N u + q'x + r'u with [[Q, N], [N', R]] positive definite, drift f, terminal 0.5 x'Qx + "
+            "q'x), the same matrices in Crocoddyl's `ActionModelLQR`. `solvers.lqr` is the exact Riccati solution; "
+            "iLQR / DDP take one iteration and confirm convergence with a second; Crocoddyl's solvers stop after one."))
     run = Runner(config, table)
     sol = lq.solve()
     ref_cost, ref_us = float(sol.cost), np.asarray(sol.us)
@@ -253,11 +251,11 @@ def _dare_table(config, sz: OCSizes) -> Table:
         "oc-dare", f"Discrete algebraic Riccati equation, {n} × {m}, batched",
         accuracy_label="max rel ΔP vs scipy / max rel Riccati residual", description=(
             f"{big} seeded random systems (`benchmarks.oc.make_dare_systems`: A Gaussian with spectral radius 1.1, B "
-            "Gaussian, Q = GG' + 1e-3 I, R = HH' + I), float64. jaxanim: `jax.jit(jax.vmap(solvers.dare))` "
+            "Gaussian, Q = GG' + 1e-3 I, R = HH' + I). jaxanim: `jax.jit(jax.vmap(solvers.dare))` "
             "(structure-preserving doubling, adaptive while_loop) on the first `batch` systems; scipy: "
-            f"`scipy.linalg.solve_discrete_are` in a Python loop over the first {cap} systems (µs / char = per "
-            "system). ΔP: max over systems of max|P − P_scipy| / max|P_scipy| on the systems both solved; residual: "
-            "max over the batch of max|F(P)| / max|P| (numpy float64)."),
+            f"`scipy.linalg.solve_discrete_are` in a Python loop over the first {cap} (µs / char = per system). ΔP: "
+            "max over the systems both solved of max|P − P_scipy| / max|P_scipy|; residual: max over the batch of "
+            "max|F(P)| / max|P| (numpy float64)."),
         targets=[Target(f"batched DARE ≥ 20x the scipy loop at batch {big}", sel("jaxanim dare", batch=big), 20.0,
                         versus=sel(_SCIPY))])
     run = Runner(config, table)
@@ -314,15 +312,14 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
         f"oc-{name}", f"Optimal control: batched {name.replace('_', '-')} swing-ups, T = {T}",
         accuracy_label=f"final costs agreeing with Crocoddyl DDP (≤ {AGREE_RTOL:g} rel.)", description=(
             f"`solvers.problems.{name}()` (explicit Euler, dt = {float(prob.args['dt']):g}, quadratic cost to upright) "
-            f"from {big} seeded starts ({_STARTS[name]}), zero controls, ≤ {max_steps} iterations, default "
-            "tolerances. jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` starts, adaptive and "
-            f"`fixed_steps=True` (a scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of "
-            "`solve` over the first starts within the row budget (its success counts those only) on Python action "
-            "models with the same dynamics, cost and analytic first derivatives of the dynamics (like with like: "
-            "jaxanim ilqr; jaxanim ddp also uses second ones). **Success**: status successful and |θ_T − π| < "
-            f"{UPRIGHT_TOLERANCE} rad. Accuracy: of the problems both this row and Crocoddyl SolverDDP solved, how "
-            f"many final costs agree to {AGREE_RTOL:g} relative (median relative difference; local optima may "
-            "differ)."),
+            f"from {big} seeded starts ({_STARTS[name]}), zero controls, ≤ {max_steps} iterations, default tolerances. "
+            "jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` starts, adaptive and `fixed_steps=True` (a "
+            f"scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of `solve` over the first "
+            "starts within the row budget (its success counts those only) on Python action models with the same "
+            "dynamics, cost and analytic first derivatives of the dynamics (like jaxanim ilqr; jaxanim ddp also uses "
+            f"second ones). **Success**: status successful and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. Accuracy: how many "
+            f"final costs of the problems both this row and Crocoddyl SolverDDP solved agree to {AGREE_RTOL:g} "
+            "relative (median relative difference; local optima may differ)."),
         targets=[Target(f"batched DDP on {big} swing-ups ≥ 20x the Crocoddyl SolverDDP loop's throughput (jaxanim "
                         "ddp: second-order dynamics; Crocoddyl: first-order)", sel("jaxanim ddp", batch=big), 20.0,
                         versus=croc),

@@ -39,9 +39,8 @@ _MJX = "MJX jit(vmap(scan(mjx.step)))"
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsSizes:
-    """Sizes; the defaults are the issue's (``--quick`` and tests shrink them). ``contact_models``:
-    ``"complementarity"``, ``"penalty"``, or ``"complementarity:8"`` (the 8 lowest points only);
-    ``stand_seconds`` / ``pendulum_seconds`` of 0 skip those tables; ``mjx_batches=None``: all batches."""
+    """Sizes (``--quick`` and tests shrink them); ``contact_models``: ``"complementarity"``, ``"penalty"``, or
+    ``"complementarity:8"`` (its 8 lowest points); 0 seconds skip a table; ``mjx_batches=None``: all batches."""
 
     batches: tuple[int, ...] = BATCHES
     steps_per_call: int = 20
@@ -52,10 +51,6 @@ class PhysicsSizes:
     pendulum_seconds: float = 1.0
     pendulum_dts: tuple[float, ...] = (1 / 600, 1 / 1200)
 
-    @classmethod
-    def quick(cls, batches: tuple[int, ...]) -> PhysicsSizes:
-        return cls(steps_per_call=5, mjx_steps=2, mjx_batches=(max(batches),), stand_seconds=0.1, pendulum_seconds=0.2)
-
 
 def clearance(state, body, local, radius) -> jax.Array:
     """The least signed distance (m; negative: penetrating) to the ground of contact points ``body, local, radius``."""
@@ -64,18 +59,15 @@ def clearance(state, body, local, radius) -> jax.Array:
 
 @dataclasses.dataclass(frozen=True)
 class StandingCharacter:
-    """The character, its start state, its SPD targets ``[J, 4]``, the free body's index and the
-    ``contact`` points ``(body, local offset, radius)`` of one contact model."""
+    """The character, its start state, its SPD targets ``[J, 4]``, the free body's index, the ``contact`` points
+    ``(body, local offset, radius)`` of one contact model and the controller args ``gains`` (``KP``, ``KD``)."""
 
     char: Any
     state: Any
     targets: Any
     root: int
     contact: tuple
-
-    def gains(self) -> dict:  # controller args
-        n = self.char.model.joints.num_joints
-        return dict(kp=jnp.full((n,), KP), kd=jnp.full((n,), KD))
+    gains: dict
 
     def controller(self, state, step, args):
         return dict(spd=(self.targets, args["kp"], args["kd"]))
@@ -109,7 +101,9 @@ def standing_character(data_dir: pathlib.Path | str, contact_model: str = "compl
     contact = (np.asarray(own), loc, rad)
     t0 = jnp.asarray(t0).at[skel.parents.index(-1), 1].add(-float(clearance(state, *contact)) / char.unit)
     char, state = character.build_character(skel, q0, t0, ground=ground)
-    return StandingCharacter(char, state, character.spd_targets(char, q0, t0), character.root_body(char), contact)
+    n = char.model.joints.num_joints
+    return StandingCharacter(char, state, character.spd_targets(char, q0, t0), character.root_body(char), contact,
+                             dict(kp=jnp.full((n,), KP), kd=jnp.full((n,), KD)))
 
 
 def double_pendulum():
@@ -139,17 +133,16 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
         "physics", f"Physics: a {ch0.char.num_bodies}-body character standing under PD control (character-steps per "
         "second)", accuracy_label="max |Δx| vs MuJoCo C, char 0 (m)", description=(
             f"The CMU skeleton (`{CLIP}`, frame {STAND_FRAME}: both feet flat) as {ch0.char.num_bodies} bodies with "
-            f"{ch0.char.model.joints.num_joints} ball joints (70 kg), every joint held at its pose by stable PD (kp "
-            f"{KP:g} N m/rad, kd {KD:g} N m s/rad); MuJoCo runs `character.export_mjcf` of it (joint springs of the "
-            "same stiffness and damping, Euler, condim 3 plane contact, μ 0.8). Character b starts with a seeded root "
+            f"{ch0.char.model.joints.num_joints} ball joints (70 kg), each held at its pose by stable PD (kp {KP:g} N "
+            f"m/rad, kd {KD:g} N m s/rad); MuJoCo runs its `character.export_mjcf` (joint springs of the same "
+            "stiffness and damping, Euler, condim 3 plane contact, μ 0.8). Character b starts with a seeded root "
             f"velocity (±{ROOT_SPEED} m/s along x, z). **µs / char is per character-step**: a call is {n} steps of "
-            f"`batch` characters (MJX: {sz.mjx_steps} steps), dt = 1/{round(1 / DT)} s. jaxanim: "
-            "`jax.jit(jax.vmap(physics.rollout))` over the characters' states. MuJoCo C: a Python loop of `mj_step` "
-            "per character (each `MjData` reset to its start state every call), and `mujoco.rollout.rollout` with "
-            f"{nthread} threads (one `MjData` per usable core; the other rows share the same cores). MJX: "
-            "`jax.jit(jax.vmap(scan of mjx.step))` on the CPU. Accuracy: max body-position difference of character "
-            "0 after the call's steps against MuJoCo C (different contact and PD models: a difference, not an "
-            "error)."),
+            f"`batch` characters (MJX: {sz.mjx_steps}), dt = 1/{round(1 / DT)} s. jaxanim: "
+            "`jax.jit(jax.vmap(physics.rollout))`; MuJoCo C: a Python loop of `mj_step` per character (each `MjData` "
+            f"reset to its start state every call), and `mujoco.rollout.rollout` on {nthread} threads (one `MjData` "
+            "per usable core, shared with the other rows); MJX: `jax.jit(jax.vmap(scan of mjx.step))` on the CPU. "
+            "Accuracy: character 0's body positions after the call vs MuJoCo C's (different contact and PD models: a "
+            "difference, not an error)."),
         targets=[Target("≤ 35 µs per character-step at batch 1024", sel("jaxanim", batch=1024), 35.0),
                  Target("one character's step within 5x MuJoCo C mj_step (speedup ≥ 0.2x)", sel("jaxanim", batch=1),
                         0.2, versus=sel(_MJ_LOOP, batch=1)),
@@ -195,7 +188,7 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
             r = physics.rollout(ch.char.model, s, DT, n, record_every=n, controller=ch.controller, controller_args=args)
             return r.final.position, r.result, r.num_steps
 
-        (pos, result, steps), tm, comp = run.jax(jax.vmap(one, in_axes=(0, None)), ch.batch_states(b), ch.gains())
+        (pos, result, steps), tm, comp = run.jax(jax.vmap(one, in_axes=(0, None)), ch.batch_states(b), ch.gains)
         ok = np.asarray(result == physics.SimResult.successful) & (np.asarray(steps) == n)
         return run.row(impl, "float64", b, tm, b * n, comp, diff(np.asarray(pos[0]), n), success=float(ok.mean()),
                        status=status_counts(result, physics.SimResult), note=f"{model} contact")
@@ -226,12 +219,11 @@ def _standing_table(config, sz: PhysicsSizes) -> Table:
         "physics-standing", f"Physics: standing character, {secs:g} s, accuracy",
         accuracy_label="max |root y − MuJoCo's| (m)", description=(
             f"One character (the table above's character 0, no initial velocity) for {secs:g} s of simulated time, one "
-            "unbatched run of the whole duration per call (µs / char is per step; the table above measures "
-            "throughput). Root height `y` of the free body's center of mass: start → end and min / max change "
-            "(sampled every 10 ms); penetration: the deepest contact point under the plane (jaxanim: signed distance "
-            "of its contact points, every 10 ms; MuJoCo: `contact.dist`, every step; MuJoCo's contacts are soft); "
-            "joint separation: jaxanim's max constraint drift (`physics.joint_error`; MuJoCo's reduced coordinates "
-            "have none). Accuracy: max |root y − MuJoCo C's at the same dt| over the samples."))
+            "unbatched run per call (µs / char is per step). Root height `y` of the free body's center of mass: start "
+            "→ end and min / max change (sampled every 10 ms); penetration: the deepest contact point under the plane "
+            "(jaxanim: signed distance of its contact points, every 10 ms; MuJoCo: `contact.dist`, every step; its "
+            "contacts are soft); joint separation: jaxanim's max constraint drift (`physics.joint_error`; MuJoCo's "
+            "reduced coordinates have none). Accuracy: max |root y − MuJoCo C's| over the samples."))
     run = Runner(config, table)
     ch0 = standing_character(config.data_dir, "complementarity")
     y0, k = float(ch0.state.position[ch0.root, 1]), max(1, round(0.01 / DT))  # samples every k steps (10 ms)
@@ -255,7 +247,7 @@ def _standing_table(config, sz: PhysicsSizes) -> Table:
         ch = standing_character(config.data_dir, model)
         fn = lambda s, a: physics.rollout(ch.char.model, s, DT, total, record_every=k,  # noqa: E731
                                           controller=ch.controller, controller_args=a)
-        out, tm, comp = run.jax(fn, ch.state, ch.gains())
+        out, tm, comp = run.jax(fn, ch.state, ch.gains)
         ys = np.asarray(out.trajectory.position[:, ch.root, 1])
         clear = float(np.min(jax.vmap(lambda s: clearance(s, *ch.contact))(out.trajectory)))
         drift = float(np.max(jax.vmap(lambda s: physics.joint_error(ch.char.model, s))(out.trajectory)))
@@ -279,10 +271,10 @@ def _pendulum_table(config, sz: PhysicsSizes) -> Table:
         accuracy_label=f"max body position error vs MuJoCo dt 1/{round(1 / PENDULUM_REF_DT)} (m)", description=(
             "Two capsules (radius 0.05 m, 0.4 m between cap centers, 1000 kg/m³) hanging from the origin by ball "
             "joints, released with the lower link out of the upper one's plane (3-D motion), no contact, exported "
-            "with `physics.to_mjcf`. jaxanim `physics.rollout` and MuJoCo C (`mj_step`, Euler, one unbatched run "
-            f"per call) at each dt, against MuJoCo at dt 1/{round(1 / PENDULUM_REF_DT)} (the reference); both "
-            "schemes are first order. Notes: the difference to MuJoCo at the same dt and jaxanim's max joint "
-            "separation over the run (constraint drift)."))
+            "with `physics.to_mjcf`. jaxanim `physics.rollout` and MuJoCo C (`mj_step`, Euler, one unbatched run per "
+            f"call) at each dt, against MuJoCo at dt 1/{round(1 / PENDULUM_REF_DT)} (the reference); both schemes are "
+            "first order. Notes: the difference to MuJoCo at the same dt and the max joint separation (constraint "
+            "drift)."))
     run = Runner(config, table)
     model, state = double_pendulum()
 
@@ -336,7 +328,8 @@ def run_physics(config, sizes: PhysicsSizes | None = None, tables: tuple[str, ..
     unknown = set(tables) - set(TABLES)
     if unknown:
         raise ValueError(f"tables: unknown {sorted(unknown)}; expected some of {TABLES}")
-    sz = sizes or (PhysicsSizes.quick(config.batches_for(BATCHES)) if config.quick else PhysicsSizes())
+    sz = sizes or (PhysicsSizes(steps_per_call=5, mjx_steps=2, mjx_batches=(max(config.batches_for(BATCHES)),),
+                                stand_seconds=0.1, pendulum_seconds=0.2) if config.quick else PhysicsSizes())
     config.float64_only("physics", "MuJoCo is float64")
     out: list[Table] = []
     path = config.data_file(CLIP)

@@ -1,6 +1,5 @@
-"""Rows as data (:class:`Row`, :class:`Table`, :class:`Target`) and the one template, :func:`render_table`, the
-only place that writes prose: the table, the "× best peer" column and line, each target met / missed with the
-rows it was judged on, the benchmark's measured facts and how it was measured."""
+"""Rows as data (:class:`Row`, :class:`Table`, :class:`Target`) and the one template that writes them,
+:func:`render_table`: the table, the best peers, each target met / missed with its rows, the notes, the run."""
 
 from __future__ import annotations
 
@@ -19,11 +18,10 @@ _DASH = "—"
 
 @dataclasses.dataclass
 class Row:
-    """What one implementation of a problem measured at one dtype and batch size: seconds per timed call,
-    ``chars_per_call`` problems (or character-steps) per call (``batch`` unless a Python loop was capped),
-    ``compile_s`` (``lower + compile``), ``accuracy`` (a number or text), ``success`` (fraction solved),
-    ``status`` (counts of statuses other than success), ``samples`` (timed calls), why it was ``skipped``,
-    and ``extra`` measured values that later rows need (not rendered)."""
+    """What one implementation measured at one dtype and batch: seconds per timed call of ``chars_per_call``
+    problems or character-steps (``batch`` unless a Python loop was capped), ``compile_s`` (lower + compile),
+    ``accuracy`` (number or text), ``success`` (fraction solved), ``status`` (counts of the other statuses),
+    ``samples`` (timed calls), why it was ``skipped`` and ``extra`` values later rows need (not rendered)."""
 
     implementation: str
     dtype: str | None = None
@@ -180,9 +178,8 @@ def render_table(table: Table) -> str:
             cells = [r.implementation, r.dtype or _DASH, str(r.batch) if r.batch else _DASH, f"skipped: {r.skipped}"]
             cells += [_DASH] * (len(header) - 5) + [r.note]
         else:
-            ratio = _DASH
-            if r.batch in best and r.us_per_char is not None:
-                ratio = f"{r.us_per_char / best[r.batch].us_per_char:.3g}×"
+            ok = r.batch in best and r.us_per_char is not None
+            ratio = f"{r.us_per_char / best[r.batch].us_per_char:.3g}×" if ok else _DASH
             cells = [r.implementation, r.dtype or _DASH, str(r.batch),
                      f"{format_seconds(r.time_median_s)} ({format_seconds(r.time_min_s)})", _num(r.us_per_char),
                      format_seconds(r.compile_s), _acc(r.accuracy)]

@@ -1,7 +1,5 @@
-"""Timing, and the one harness (:class:`Runner`) that turns a measurement into a :class:`~benchmarks.report.Row`.
-Compile time is ``jax.jit(f).lower(*args).compile()`` on a fresh ``jax.jit`` object; run time, reported apart, is
-the median (min) over samples, after warm-up, of one call waited for with ``block_until_ready`` (calls shorter than
-``min_sample_s`` are repeated inside a sample; calls over a second are sampled only within the row budget)."""
+"""Timing (compile time, and apart from it the median / min run time of calls waited for with ``block_until_ready``)
+and the one harness, :class:`Runner`, that turns a measurement into a :class:`~benchmarks.report.Row`."""
 
 from __future__ import annotations
 
@@ -187,9 +185,7 @@ class Runner:
                    compile_s, accuracy, samples=tm.samples if tm else None, **kw)
 
 
-def status_counts(result: Any, enumeration: Any = None) -> dict[str, int]:
-    """Counts of each status but success in a (batched) solver ``result`` (``solvers.RESULTS`` by default)."""
-    enumeration = solvers.RESULTS if enumeration is None else enumeration
-    counts = {name: int(np.sum(np.asarray(result == item))) for name, item in enumeration._name_to_item.items()
-              if name != "successful"}
-    return {k: v for k, v in counts.items() if v}
+def status_counts(result: Any, enumeration: Any = solvers.RESULTS) -> dict[str, int]:
+    """Counts of each status but success in a (batched) solver ``result``."""
+    counts = ((name, int(np.sum(np.asarray(result == item)))) for name, item in enumeration._name_to_item.items())
+    return {name: n for name, n in counts if n and name != "successful"}

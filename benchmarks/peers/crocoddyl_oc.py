@@ -1,6 +1,5 @@
-"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR``, and
-Python action models of :mod:`solvers.problems` (explicit Euler, quadratic cost, exact cost derivatives and
-first derivatives of the dynamics ``Fx, Fu``, all that Crocoddyl's DDP solvers use)."""
+"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR`` and Python
+action models of :mod:`solvers.problems` (with all that Crocoddyl's DDP solvers use: see :func:`python_model_class`)."""
 
 from __future__ import annotations
 
@@ -27,9 +26,9 @@ def load_crocoddyl():
 
 
 def python_model_class(name: str) -> type:
-    """The Python action-model class ``name`` (``"pendulum"``, ``"cart_pole"``, ``"unicycle"``), built on
-    first use; ``cls(args, terminal=False)`` takes :mod:`solvers.problems`' ``args`` as float64 numpy
-    (``dt``, ``goal``, ``Q``, ``R``, ``QT``, physical constants); a terminal model uses ``QT``, no ``u``."""
+    """The Python action-model class ``name`` (``"pendulum"``, ``"cart_pole"``, ``"unicycle"``): explicit Euler,
+    quadratic cost, exact cost derivatives and first derivatives ``Fx, Fu`` of the dynamics; ``cls(args,
+    terminal=False)`` takes :mod:`solvers.problems`' ``args`` (a terminal model uses ``QT``, no ``u``)."""
     return _classes()[name]
 
 

@@ -34,9 +34,8 @@ def load_mjx():
 
 
 class MujocoSim:
-    """A MuJoCo model (``xml``) of a jaxanim model and ``B`` characters' initial states: the assembly
-    pose at rest but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions
-    are returned in jaxanim's ``body_names`` order."""
+    """A MuJoCo model (``xml``) of a jaxanim model and ``B`` characters' initial states, at rest in the assembly pose
+    but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions in ``body_names`` order."""
 
     def __init__(self, xml: str, body_names: Sequence[str], root: int, root_velocities: np.ndarray):
         self.mujoco = mujoco = load_mujoco()
@@ -98,16 +97,13 @@ def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, Any]:
     character over the first ``batch`` characters' initial states (cast to the dtypes ``mjx.step``
     returns: under x64 ``put_data`` makes int32 contact indices that ``step`` returns as int64)."""
     mjx = load_mjx()
-    mujoco = sim.mujoco
-    mx = mjx.put_model(sim.model)
-    datas = []
+    mx, datas = mjx.put_model(sim.model), []
     for i in range(batch):
-        d = sim.reset(i, mujoco.MjData(sim.model))
-        mujoco.mj_forward(sim.model, d)
+        d = sim.reset(i, sim.mujoco.MjData(sim.model))
+        sim.mujoco.mj_forward(sim.model, d)
         datas.append(mjx.put_data(sim.model, d))
     dx = jax.tree.map(lambda *a: jnp.stack(a), *datas)
-    shape = jax.eval_shape(mjx.step, mx, datas[0])
-    dx = jax.tree.map(lambda a, s: jnp.asarray(a, s.dtype), dx, shape)
+    dx = jax.tree.map(lambda a, s: jnp.asarray(a, s.dtype), dx, jax.eval_shape(mjx.step, mx, datas[0]))
 
     def one(d):
         return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), d, None, length=nstep)[0].qpos

@@ -1,6 +1,5 @@
-"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model`` (free flyer root, spherical joints at
-their OFFSETs, a ``JOINT`` frame per joint, an ``OP_FRAME`` per End Site), timed loops and CLIK. Its ``q`` stores
-quaternions xyzw, its velocities are in local frames (``R <- R exp(w)``; jaxanim's columns: ``R <- exp(d) R``)."""
+"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model`` (free flyer root, spherical joints, a
+``JOINT`` frame per joint, an ``OP_FRAME`` per End Site), timed loops and CLIK; ``q`` stores quaternions xyzw."""
 
 from __future__ import annotations
 
