@@ -1,5 +1,4 @@
-"""Forward-kinematics and Jacobian benchmarks on the 31-joint CMU skeleton (``fk``, ``jacobian``); the
-problems and implementations are described by the tables. float64 runs first: its reference rows are reused."""
+"""Forward-kinematics and Jacobian benchmarks (``fk``, ``jacobian``); float64 runs first, its reference rows reused."""
 
 from __future__ import annotations
 
@@ -91,10 +90,9 @@ def _so3_exp(v: jax.Array) -> jax.Array:
 
 def perturbed_sites(skeleton, rotations: jax.Array, translations: jax.Array, sites: tuple[str, ...],
                     delta: jax.Array, fk: Callable | None = None) -> tuple[jax.Array, jax.Array]:
-    """Site positions ``[sites, 3]`` and rotations ``[sites, 3, 3]`` (world; an End Site has its joint's) after
-    perturbing one pose by ``delta = [dt (3), d_0 (3), ..., d_{J-1} (3)]``: the root translation becomes ``t_0 + dt``
-    and every local rotation ``R_j`` becomes ``exp(d_j) R_j``; ``fk(skeleton, R_local, t_local)`` defaults to
-    jaxanim's ``forward_kinematics``."""
+    """World site positions ``[sites, 3]`` and rotations ``[sites, 3, 3]`` (an End Site has its joint's) of one pose
+    perturbed by ``delta = [dt (3), d_0 (3), ..., d_{J-1} (3)]``: root translation ``t_0 + dt``, local rotations
+    ``exp(d_j) R_j``; ``fk(skeleton, R_local, t_local)`` defaults to jaxanim's ``forward_kinematics``."""
     J = skeleton.num_joints
     R_local = _so3_exp(delta[3:].reshape(J, 3)) @ JaxRotation.from_quat(rotations[:, [1, 2, 3, 0]]).as_matrix()
     res = (fk or forward_kinematics)(skeleton, R_local, translations.at[0].add(delta[:3]))

@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import pathlib
-import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
@@ -127,16 +126,13 @@ def make_problems(skeleton, batch: int, seed: int = SEED, dtype: Any = jnp.float
 
 
 class IKEvaluation(NamedTuple):
-    """``position_errors [B, sites]`` (file units), ``orientation_errors [B, sites]`` (rad) from an
-    independent float64 numpy FK and ``success [B]`` (every error under its tolerance)."""
+    """``position_errors [B, sites]`` (file units), ``orientation_errors [B, sites]`` (rad) from an independent
+    float64 numpy FK, ``success [B]`` (every error under its tolerance) and its ``rate``."""
 
     position_errors: np.ndarray
     orientation_errors: np.ndarray
     success: np.ndarray
-
-    @property
-    def rate(self) -> float:
-        return float(np.mean(self.success)) if self.success.size else float("nan")
+    rate: float
 
     def p98(self) -> str:  # over problems, of each problem's worst position / orientation error
         return " / ".join(f"{np.percentile(e.max(axis=1), 98):.1e}" for e in self[:2])
@@ -160,7 +156,8 @@ def evaluate(skeleton, targets, rotations, translations) -> IKEvaluation:
     angle = Rotation.from_matrix(np.einsum("bsij,bskj->bsik", R, goal_R).reshape(-1, 3, 3)).magnitude()
     oe = np.where(finite[:, None], angle.reshape(pe.shape), np.inf)
     pt = POSITION_TOLERANCE_REL * skeleton_height(skeleton)
-    return IKEvaluation(pe, oe, (pe < pt).all(axis=1) & (oe < ORIENTATION_TOLERANCE).all(axis=1))
+    ok = (pe < pt).all(axis=1) & (oe < ORIENTATION_TOLERANCE).all(axis=1)
+    return IKEvaluation(pe, oe, ok, float(np.mean(ok)) if ok.size else float("nan"))
 
 
 def batched_solver(skeleton, solve: Callable | None = None, **kwargs) -> Callable:
@@ -185,9 +182,7 @@ def _ik(solver) -> dict:
 
 
 def _jaxopt(dtype) -> dict:
-    with warnings.catch_warnings():  # jaxopt announces on import that it is unmaintained
-        warnings.simplefilter("ignore")
-        require("jaxopt", "pip install 'jaxanim[jaxopt]'")
+    require("jaxopt", "pip install 'jaxanim[jaxopt]'", quiet=True)  # it announces on import that it is unmaintained
     atol = 1e-8 if jnp.dtype(dtype) == jnp.float64 else 1e-3  # |J^T r|_2
     return _ik(solvers.JaxoptSolver("LevenbergMarquardt", atol=atol, max_steps=MAX_STEPS))
 
@@ -306,8 +301,7 @@ def run_ik(config) -> list[Table]:
         f"{POSITION_TOLERANCE_REL:g} × skeleton height ({problems.height:.2f} units, so "
         f"{problems.position_tolerance:.4f}) and orientation error < {ORIENTATION_TOLERANCE} rad, by an independent "
         "float64 numpy FK of the returned poses (not the solvers' flags). Error column: 98th percentile over problems "
-        "of each problem's worst position (units) / orientation (rad) error. Notes: iterations (solver steps; CCD "
-        "sweeps; CLIK updates).")
+        "of each problem's worst position (units) / orientation (rad) error.")
     run = Runner(config, table)
     pin = pinocchio(run, skel, _PIN)
     dtypes = sorted(config.dtypes, key=lambda d: d != "float64")

@@ -1,5 +1,4 @@
-"""Optimal-control benchmark (``python -m benchmarks oc``): iLQR / DDP / LQR / DARE vs Crocoddyl and scipy,
-float64 only; each table's description says what is compared."""
+"""Optimal-control benchmark (``python -m benchmarks oc``): iLQR / DDP / LQR / DARE vs Crocoddyl and scipy, float64."""
 
 from __future__ import annotations
 
@@ -55,8 +54,7 @@ class OCSizes:
 
 
 def make_lq(n: int = 37, m: int = 12, T: int = 100, seed: int = SEED) -> dict[str, np.ndarray]:
-    """A seeded LQ problem in Crocoddyl's ``ActionModelLQR`` terms (``A`` at spectral radius 1.02,
-    ``[[Q, N], [N', R]] = L L' + 0.1 I``, affine ``q, r``, drift ``f``; see the table's description)."""
+    """A seeded LQ problem in Crocoddyl's ``ActionModelLQR`` terms, ``[[Q, N], [N', R]] = L L' + 0.1 I``."""
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(n, n)) / np.sqrt(n)
     A *= 1.02 / np.abs(np.linalg.eigvals(A)).max()
@@ -377,10 +375,9 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
 
 def _compile_table(tables: Sequence[Table]) -> Table:
     table = Table("oc-compile", "Optimal control: compile times (jaxanim)", accuracy_label="—", description=(
-        "`jax.jit(f).lower(*args).compile()` of every jitted jaxanim row of the tables above, on a fresh `jax.jit` "
-        "object (tracing + lowering + XLA compilation: what the first call costs on top of running); the run times "
-        "above never include it."), targets=[Target("iLQR / DDP compile ≤ 5 s", sel(("jaxanim ilqr", "jaxanim ddp")),
-                                                    5.0, "compile", worst=True)])
+        "`jax.jit(f).lower(*args).compile()` of every jitted jaxanim row above on a fresh `jax.jit` object (tracing, "
+        "lowering and XLA compilation: what the first call costs on top of running), never in the run times above."),
+        targets=[Target("iLQR / DDP compile ≤ 5 s", sel(("jaxanim ilqr", "jaxanim ddp")), 5.0, "compile", worst=True)])
     for t in tables:
         table.rows += [Row(f"{r.implementation} [{t.name.removeprefix('oc-')}]", r.dtype, r.batch,
                            compile_s=r.compile_s) for r in t.rows if r.measured and r.compile_s is not None]

@@ -107,8 +107,7 @@ def standing_character(data_dir: pathlib.Path | str, contact_model: str = "compl
 
 
 def double_pendulum():
-    """``(model, state)``: two capsules (radius 0.05 m, 0.4 m between cap centers) hanging from the
-    origin by ball joints, released with the lower link out of the upper one's plane."""
+    """``(model, state)`` of the pendulum table's two capsules (see its description)."""
     r, length = 0.05, 0.4
     half = length / 2 + r
     bodies = physics.make_bodies([("capsule", (r, length)), ("capsule", (r, length))], names=("upper", "lower"),
@@ -273,8 +272,7 @@ def _pendulum_table(config, sz: PhysicsSizes) -> Table:
             "joints, released with the lower link out of the upper one's plane (3-D motion), no contact, exported "
             "with `physics.to_mjcf`. jaxanim `physics.rollout` and MuJoCo C (`mj_step`, Euler, one unbatched run per "
             f"call) at each dt, against MuJoCo at dt 1/{round(1 / PENDULUM_REF_DT)} (the reference); both schemes are "
-            "first order. Notes: the difference to MuJoCo at the same dt and the max joint separation (constraint "
-            "drift)."))
+            "first order. Notes: the difference to MuJoCo at the same dt, the max joint separation (drift)."))
     run = Runner(config, table)
     model, state = double_pendulum()
 

@@ -4,7 +4,6 @@ action models of :mod:`solvers.problems` (with all that Crocoddyl's DDP solvers 
 from __future__ import annotations
 
 import functools
-import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -17,9 +16,7 @@ __all__ = ["load_crocoddyl", "lqr_problem", "python_model_class", "python_proble
 
 def load_crocoddyl():
     """The ``crocoddyl`` module, or :class:`PeerUnavailable`."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        croc = require("crocoddyl", "pip install crocoddyl==3.2.1")
+    croc = require("crocoddyl", "pip install crocoddyl==3.2.1", quiet=True)
     if not hasattr(croc, "ActionModelAbstract"):
         raise PeerUnavailable(f"crocoddyl {getattr(croc, '__version__', '?')} has no ActionModelAbstract")
     return croc
@@ -165,7 +162,6 @@ def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int):
 
 
 def python_problem(name: str, args: dict[str, Any], x0, T: int):
-    """A ``ShootingProblem`` of ``T`` knots of the Python model ``name`` (see :func:`python_model_class`) with the
-    values of a :class:`solvers.problems.ControlProblem`'s ``args``."""
+    """A ``ShootingProblem`` of ``T`` knots of the Python model ``name`` with a ``ControlProblem``'s ``args``."""
     cls = python_model_class(name)  # its models take the args as float64 numpy
     return _shooting(load_crocoddyl(), x0, cls(args), cls(args, terminal=True), T)

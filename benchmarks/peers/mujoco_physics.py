@@ -75,8 +75,7 @@ class MujocoSim:
                 step(m, d)
 
     def rollout(self, nstep: int, pool: list, count: int) -> np.ndarray:
-        """``mujoco.rollout.rollout`` of the first ``count`` characters from their start states on the threads
-        of ``pool`` (one ``MjData`` per thread); ``[count, nstep, nstate]``."""
+        """``[count, nstep, nstate]``: ``mujoco.rollout.rollout`` of ``count`` start states on ``pool``'s MjData."""
         from mujoco import rollout as mj_rollout
 
         return mj_rollout.rollout(self.model, pool, self.initial_states[:count], nstep=nstep, persistent_pool=True)[0]

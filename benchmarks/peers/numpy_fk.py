@@ -12,8 +12,7 @@ __all__ = ["FKArrays", "forward_kinematics"]
 
 
 class FKArrays(NamedTuple):
-    """``rotations [B, joints, 3, 3]`` (``R_world_joint``), ``positions [B, joints, 3]``, ``end_site_positions``
-    (``B`` absent for the one pose of ``benchmarks.fk.naive_fk``)."""
+    """World ``rotations [B, joints, 3, 3]``, ``positions [B, joints, 3]``, ``end_site_positions`` (naive_fk: no B)."""
 
     rotations: np.ndarray
     positions: np.ndarray

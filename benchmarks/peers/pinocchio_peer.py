@@ -83,7 +83,7 @@ def positions(ps: PinocchioSkeleton, qs: Sequence[np.ndarray]) -> tuple[np.ndarr
     for b, q in enumerate(qs):
         pin.forwardKinematics(model, data, q)
         pin.updateFramePlacements(model, data)
-        pj[b] = [data.oMi[j].translation for j in ps.joint_ids]
+        pj[b] = [data.oMi[j].translation for j in ps.joint_ids]  # copies: oMi / oMf are views into data
         pe[b] = [data.oMf[f].translation for f in ps.end_site_frame_ids]
     return pj, pe
 
