@@ -154,8 +154,8 @@ def judge(target: Target, rows: Sequence[Row]) -> str:
         return (f"Target: {target.text}: {_who(r)} {_fmt_metric(key(r), target.metric)} vs {_who(p)} "
                 f"{_fmt_metric(key(p), target.metric)} = {x:.3g}x: {'met' if x >= target.limit else 'missed'}.")
     ok = key(r) >= target.limit if higher else key(r) <= target.limit
-    span = f" (range {_fmt_metric(key(cands[-1]), target.metric)} to it over {len(cands)} rows)" if (
-        target.worst and len(cands) > 1) else ""
+    ranged = target.worst and len(cands) > 1
+    span = f" (range {_fmt_metric(key(cands[-1]), target.metric)} to it over {len(cands)} rows)" if ranged else ""
     return f"Target: {target.text}: {'worst' if target.worst else 'best'} {_who(r)} " \
            f"{_fmt_metric(key(r), target.metric)}{span}: {'met' if ok else 'missed'}."
 
