@@ -1,6 +1,5 @@
-"""Command line: ``python -m benchmarks [NAME ...] [--quick] [--dtype ...] [--out BENCHMARKS.md]``: runs the
-benchmarks in this process and writes the report (progress on stderr). x64 is switched on before anything
-else touches JAX; every benchmark gives its arrays explicit dtypes, so float32 rows stay float32."""
+"""Command line: ``python -m benchmarks [NAME ...] [--quick] [--dtype ...] [--out BENCHMARKS.md]`` runs the
+benchmarks in this process (progress on stderr) and writes the report; x64 is on before anything touches JAX."""
 
 from __future__ import annotations
 

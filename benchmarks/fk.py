@@ -1,26 +1,25 @@
-"""Forward-kinematics and Jacobian benchmarks on the 31-joint CMU skeleton (``fk``, ``jacobian``); the
-problems and implementations are described by the tables. float64 runs first: its reference rows are reused."""
+"""Forward-kinematics and Jacobian benchmarks (``fk``, ``jacobian``); float64 runs first, its reference rows reused."""
 
 from __future__ import annotations
 
 import functools
-import importlib
 import pathlib
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.spatial.transform import Rotation as JaxRotation
 from jaxanim import forward_kinematics, jacobian, read_bvh
+from scipy.spatial.transform import Rotation
 
 from .peers import PeerUnavailable
-from .peers import numpy_fk as numpy_peer
+from .peers import numpy_fk as numpy_peer, pinocchio_peer
 from .report import Row, Table, Target, sel
 from .timing import Runner
 
-__all__ = ["CLIP", "FK_BATCHES", "JACOBIAN_BATCHES", "JACOBIAN_SITES", "NaiveFK", "Problem", "autodiff_jacobian",
-           "load_problem", "naive_fk", "perturbed_sites", "run_fk", "run_jacobian"]
+__all__ = ["CLIP", "Problem", "autodiff_jacobian", "naive_fk", "perturbed_sites", "run_fk", "run_jacobian"]
 
 CLIP = "bvh/cmu_01_01_trim300.bvh"
 REFERENCE = "fk/cmu_01_01_trim300.fk.npz"
@@ -30,20 +29,6 @@ JACOBIAN_SITES = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End"
 SEED = 0
 MAX_ANGLE_DEG = 45.0
 _ACCURACY_SAMPLES = 64  # configurations on which Python-loop peers are checked (untimed)
-
-
-def _quat_mul_np(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _axis_quat_np(angle: np.ndarray, axis: int) -> np.ndarray:
-    q = np.zeros(angle.shape + (4,))
-    q[..., 0] = np.cos(angle / 2)
-    q[..., 1 + axis] = np.sin(angle / 2)
-    return q
 
 
 def _cast(tree, dtype):
@@ -63,11 +48,10 @@ class Problem:
         frames = np.arange(max_batch) % clip_q.shape[0]
         rng = np.random.default_rng(seed)
         ang = np.deg2rad(rng.uniform(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, size=(max_batch, clip_q.shape[1], 3)))
-        noise = _quat_mul_np(_quat_mul_np(_axis_quat_np(ang[..., 0], 0), _axis_quat_np(ang[..., 1], 1)),
-                             _axis_quat_np(ang[..., 2], 2))
-        q = _quat_mul_np(clip_q[frames], noise)
-        self.quats = q / np.linalg.norm(q, axis=-1, keepdims=True)
-        self.mats = numpy_peer.quat_to_matrix(self.quats)
+        r = Rotation.from_quat(clip_q[frames].reshape(-1, 4)[:, [1, 2, 3, 0]]) * Rotation.from_euler(
+            "XYZ", ang.reshape(-1, 3))  # each local rotation times Rx(a) Ry(b) Rz(c)
+        self.quats = r.as_quat()[:, [3, 0, 1, 2]].reshape(ang.shape[:2] + (4,))
+        self.mats = r.as_matrix().reshape(ang.shape[:2] + (3, 3))
         self.trans = np.ascontiguousarray(np.asarray(self.motion.translations, dtype=np.float64)[frames])
 
     def jax_inputs(self, dtype: Any, batch: int, matrices: bool = False) -> tuple[jax.Array, jax.Array]:
@@ -76,47 +60,18 @@ class Problem:
         return jnp.asarray(rot[:batch], dtype=dtype), jnp.asarray(self.trans[:batch], dtype=dtype)
 
 
-def load_problem(config, max_batch: int) -> Problem | str:
-    """The benchmark problem, or the reason it cannot be built (the BVH file is missing)."""
-    path = config.data_file(CLIP)
-    return Problem(path, max_batch) if isinstance(path, pathlib.Path) else path
-
-
-class NaiveFK(NamedTuple):  # the fields of jaxanim's FK result
-    rotations: jax.Array
-    positions: jax.Array
-    end_site_positions: jax.Array
-
-
-def naive_fk(parents: Sequence[int], end_site_parents: Sequence[int], end_site_offsets: jax.Array,
-             rotations: jax.Array, translations: jax.Array) -> NaiveFK:
-    """Textbook FK for one pose: a Python loop over joints, one 3x3 matmul each.
-
-    Args: ``parents`` (static, topologically sorted, ``-1`` root), ``end_site_parents`` (static),
-    ``end_site_offsets [end_sites, 3]``, ``rotations [joints, 3, 3]`` local, ``translations [joints, 3]``.
-    """
+def naive_fk(skeleton, rotations: jax.Array, translations: jax.Array) -> numpy_peer.FKArrays:
+    """Textbook FK for one pose: a Python loop over joints (``skeleton.parents``, static), one 3x3 matmul each;
+    ``rotations [joints, 3, 3]`` local, ``translations [joints, 3]``."""
     R_world: list[jax.Array] = []
     p_world: list[jax.Array] = []
-    for j, p in enumerate(parents):
+    for j, p in enumerate(skeleton.parents):
         R_world.append(rotations[j] if p < 0 else R_world[p] @ rotations[j])
         p_world.append(translations[j] if p < 0 else p_world[p] + R_world[p] @ translations[j])
-    off = end_site_offsets.astype(rotations.dtype)
-    ends = [p_world[p] + R_world[p] @ off[e] for e, p in enumerate(end_site_parents)]
+    off = skeleton.end_site_offsets.astype(rotations.dtype)
+    ends = [p_world[p] + R_world[p] @ off[e] for e, p in enumerate(skeleton.end_site_parents)]
     ends_arr = jnp.stack(ends) if ends else jnp.zeros((0, 3), rotations.dtype)
-    return NaiveFK(jnp.stack(R_world), jnp.stack(p_world), ends_arr)
-
-
-def _naive_fk_skeleton(skeleton, rotations: jax.Array, translations: jax.Array) -> NaiveFK:
-    return naive_fk(skeleton.parents, skeleton.end_site_parents, skeleton.end_site_offsets, rotations, translations)
-
-
-def _quat_to_matrix(q: jax.Array) -> jax.Array:
-    """wxyz unit quaternions ``[..., 4]`` to matrices ``[..., 3, 3]`` (independent of jaxanim)."""
-    w, x, y, z = (q[..., i] for i in range(4))
-    rows = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
-    return jnp.stack(rows, axis=-1).reshape(q.shape[:-1] + (3, 3))
+    return numpy_peer.FKArrays(jnp.stack(R_world), jnp.stack(p_world), ends_arr)
 
 
 def _so3_exp(v: jax.Array) -> jax.Array:
@@ -135,14 +90,11 @@ def _so3_exp(v: jax.Array) -> jax.Array:
 
 def perturbed_sites(skeleton, rotations: jax.Array, translations: jax.Array, sites: tuple[str, ...],
                     delta: jax.Array, fk: Callable | None = None) -> tuple[jax.Array, jax.Array]:
-    """Site positions ``[sites, 3]`` and rotations ``[sites, 3, 3]`` (world) after perturbing one pose.
-
-    ``delta = [dt (3), d_0 (3), ..., d_{J-1} (3)]``: the root translation becomes ``t_0 + dt`` and every
-    local rotation ``R_j`` becomes ``exp(d_j) R_j``; ``fk(skeleton, R_local, t_local)`` defaults to
-    jaxanim's ``forward_kinematics``. An End Site has its joint's rotation.
-    """
+    """World site positions ``[sites, 3]`` and rotations ``[sites, 3, 3]`` (an End Site has its joint's) of one pose
+    perturbed by ``delta = [dt (3), d_0 (3), ..., d_{J-1} (3)]``: root translation ``t_0 + dt``, local rotations
+    ``exp(d_j) R_j``; ``fk(skeleton, R_local, t_local)`` defaults to jaxanim's ``forward_kinematics``."""
     J = skeleton.num_joints
-    R_local = _so3_exp(delta[3:].reshape(J, 3)) @ _quat_to_matrix(rotations)
+    R_local = _so3_exp(delta[3:].reshape(J, 3)) @ JaxRotation.from_quat(rotations[:, [1, 2, 3, 0]]).as_matrix()
     res = (fk or forward_kinematics)(skeleton, R_local, translations.at[0].add(delta[:3]))
     idx = [skeleton.site_index(s) for s in sites]
     joint = [i if i < J else skeleton.end_site_parents[i - J] for i in idx]
@@ -174,59 +126,53 @@ def _max_err(pairs: Sequence[tuple[Any, np.ndarray]]) -> float:
 
 class _Reference:  # float64 reference outputs per batch: recorded by the reference row, else computed once
     def __init__(self, compute: Callable[[], tuple]):
-        self._compute, self._by_batch, self._full = compute, {}, None
+        self._by_batch = {}
+        self._full = functools.cache(lambda: tuple(np.asarray(a, dtype=np.float64) for a in compute()))
 
     def record(self, batch: int, *arrays: Any) -> str:
         self._by_batch[batch] = tuple(np.asarray(a, dtype=np.float64) for a in arrays)
         return "reference"
 
     def get(self, batch: int) -> tuple[np.ndarray, ...]:
-        if batch in self._by_batch:
-            return self._by_batch[batch]
-        if self._full is None:
-            self._full = tuple(np.asarray(a, dtype=np.float64) for a in self._compute())
-        return tuple(a[:batch] for a in self._full)
+        return self._by_batch.get(batch) or tuple(a[:batch] for a in self._full())
 
 
-def _jax_row(run: Runner, impl: str, fn: Callable, args: tuple, dtype: str, b: int, accuracy: Callable, note: str):
-    out, tm, comp = run.jax(jax.jit(fn), *args)  # a fresh jit per row: no trace cache hides compile work
-    return run.row(impl, dtype, b, tm, compile_s=comp, accuracy=accuracy(out), note=note)
+def _row(run: Runner, impl: str, fn: Callable, args: tuple, dtype: str, b: int, accuracy: Callable, note: str,
+         n: int | None = None) -> Row:
+    """A row of ``jax.jit(fn)`` (fresh per row: no trace cache hides compile work), or with ``n`` of a Python
+    call on ``n`` of the ``b`` configurations; ``accuracy(output)`` fills its accuracy cell."""
+    if n is None:
+        out, tm, comp = run.jax(jax.jit(fn), *args)
+    else:
+        (out, tm), comp = run.python(fn, *args), None
+        note += f"; timed on {n} of {b} configurations" if n < b else ""
+    return run.row(impl, dtype, b, tm, n, compile_s=comp, accuracy=accuracy(out), note=note)
 
 
-def pinocchio(run: Runner, skeleton, impl: str, module: str = "pinocchio_peer"):
-    """The Pinocchio adapter ``module`` and its model, or ``(None, None)`` with a skipped row added."""
+def pinocchio(run: Runner, skeleton, impl: str):
+    """The Pinocchio model of ``skeleton``, or ``None`` (``impl`` not selected, or a skipped row added)."""
     if not run.config.selects(impl):
-        return None, None
+        return None
     try:
-        mod = importlib.import_module(f"benchmarks.peers.{module}")
-        return mod, mod.build_model(skeleton)
+        return pinocchio_peer.build_model(skeleton)
     except PeerUnavailable as exc:
         run.table.rows.append(Row(impl, skipped=str(exc), is_peer=True))
-        return None, None
+        return None
 
 
-def _loop_row(run: Runner, impl: str, fn: Callable, args: tuple, b: int, n: int, accuracy: float, note: str,
-              dtype: str = "float64") -> Row:
-    _, tm = run.python(fn, *args)
-    return run.row(impl, dtype, b, tm, n, accuracy=accuracy,
-                   note=note + (f"; timed on {n} of {b} configurations" if n < b else ""))
-
-
-def _pin_inputs(run: Runner, pin_mod, problem: Problem, b: int) -> tuple[int, list, int]:
+def _pin_inputs(run: Runner, problem: Problem, b: int) -> tuple[int, list, int]:
     """``(n, configurations, k)``: the ``n`` timed configurations of batch ``b``, the first ``k`` checked."""
     n = min(b, run.config.loop_cap)
-    return n, list(pin_mod.configurations(problem.quats[:n], problem.trans[:n, 0])), min(n, _ACCURACY_SAMPLES)
+    return n, list(pinocchio_peer.configurations(problem.quats[:n], problem.trans[:n, 0])), min(n, _ACCURACY_SAMPLES)
 
 
-def _bench(config, name: str, title: str, description: str, label: str, batches: Sequence[int],
-           targets: list[Target], body: Callable) -> list[Table]:
-    table = Table(name, title, description, label, targets=targets)
-    problem = load_problem(config, max(batches))
-    if isinstance(problem, str):
-        table.skipped = problem
-        return [table]
-    body(Runner(config, table), problem, sorted(config.dtypes, key=lambda d: d != "float64"))
-    return [table]
+def _problem(config, table: Table, batch: int) -> Problem | None:
+    """The benchmark problem with ``batch`` poses, or ``None`` with ``table`` skipped (the BVH file is missing)."""
+    path = config.data_file(CLIP)
+    if isinstance(path, str):
+        table.skipped = path
+        return None
+    return Problem(path, batch)
 
 _FK_REF = "jaxanim (quaternions)"
 _PIN_FK = "Pinocchio forwardKinematics"
@@ -236,52 +182,50 @@ def run_fk(config) -> list[Table]:
     """The ``fk`` benchmark (see the module docstring)."""
     batches = config.batches_for(FK_BATCHES)
     description = (
-        f"Global rotations, joint positions and End Site positions of a batch of poses of the 31-joint CMU skeleton "
-        f"(`{CLIP}`, 7 End Sites), one call per batch. Poses: clip frame `b mod 300` with every local rotation "
-        f"right-multiplied by a random rotation of up to ±{MAX_ANGLE_DEG:g}° about each axis (seed {SEED}), clip "
-        "translations. µs / char = time per call / batch (per configuration for capped Python loops). Accuracy: max "
-        "abs error of joint + End Site positions (file units, |p| ≤ ~30) against jaxanim float64 with quaternion "
-        "input (\"reference\").")
+        f"Global rotations, joint and End Site positions of a batch of poses of the 31-joint CMU skeleton (`{CLIP}`, "
+        f"7 End Sites): clip frame `b mod 300`, every local rotation right-multiplied by a random rotation of up to "
+        f"±{MAX_ANGLE_DEG:g}° about each axis (seed {SEED}), clip translations. µs / char = time per call / batch (per "
+        "configuration for capped Python loops). Accuracy: max abs error of joint + End Site positions (file units, "
+        "|p| ≤ ~30) against jaxanim float64 with quaternion input (\"reference\").")
     targets = [Target("FK ≤ 0.5 µs per character at batch 4096 in float64", sel(_FK_REF, "float64", 4096), 0.5),
                Target("FK compile ≤ 2 s (jaxanim rows)", sel("jaxanim"), 2.0, "compile", worst=True)]
-
-    def body(run: Runner, problem: Problem, dtypes: list[str]) -> None:
-        skel64 = problem.skeleton
-        parents, esp, eso64 = skel64.parents, skel64.end_site_parents, np.asarray(skel64.end_site_offsets)
-        ref = _Reference(lambda: _outputs(jax.jit(jax.vmap(functools.partial(forward_kinematics, skel64)))(
-            *problem.jax_inputs(jnp.float64, max(batches)))))
-        err = lambda out, b: _max_err(zip(_outputs(out), ref.get(b)))  # noqa: E731
-        run.table.notes.extend(_fk_validation_notes(run.config, problem))
-        pin_mod, pin = pinocchio(run, skel64, _PIN_FK)
-        for dtype in dtypes:
-            skel = _cast(problem.skeleton, dtype)
-            naive = jax.vmap(functools.partial(naive_fk, parents, esp, jnp.asarray(eso64, dtype=dtype)))
-            for b in batches:
-                q_in, m_in = problem.jax_inputs(dtype, b), problem.jax_inputs(dtype, b, matrices=True)
-                e = functools.partial(err, b=b)
-                ours = lambda: jax.vmap(lambda r, t: forward_kinematics(skel, r, t))  # noqa: E731
-                acc_ref = (lambda out, b=b: ref.record(b, *_outputs(out))) if dtype == "float64" else e
-                run.add(_FK_REF, dtype, b, lambda: _jax_row(
-                    run, _FK_REF, ours(), q_in, dtype, b, acc_ref, "jit(vmap(forward_kinematics)), wxyz [B,31,4]"))
-                run.add("jaxanim (matrices)", dtype, b, lambda: _jax_row(
-                    run, "jaxanim (matrices)", ours(), m_in, dtype, b, e, "jit(vmap(forward_kinematics)), [B,31,3,3]"))
-                run.add("naive JAX", dtype, b, lambda: _jax_row(
-                    run, "naive JAX", naive, m_in, dtype, b, e,
-                    "jit(vmap(naive_fk)): Python loop, one matmul per joint, [B,31,3,3]"), peer=True)
-                np_args = (parents, esp, eso64.astype(dtype), problem.mats[:b].astype(dtype),
-                           problem.trans[:b].astype(dtype))
-                run.add("numpy", dtype, b, lambda: _loop_row(
-                    run, "numpy", numpy_peer.forward_kinematics, np_args, b, b, e(numpy_peer.forward_kinematics(
-                        *np_args)), "vectorized over the batch, loop over joints, [B,31,3,3]", dtype), peer=True)
-                if pin is not None and dtype == dtypes[0]:
-                    n, qs, k = _pin_inputs(run, pin_mod, problem, b)
-                    run.add(_PIN_FK, "float64", b, lambda: _loop_row(
-                        run, _PIN_FK, pin_mod.fk_loop, (pin, qs), b, n,
-                        _max_err(zip(pin_mod.positions(pin, qs[:k]), (a[:k] for a in ref.get(b)))),
-                        "Python loop over configurations; joints only (oMi), no End Sites"), peer=True)
-
-    return _bench(config, "fk", "Forward kinematics (31-joint CMU skeleton)", description,
-                  "max abs err vs jaxanim f64", batches, targets, body)
+    table = Table("fk", "Forward kinematics (31-joint CMU skeleton)", description, "max abs err vs jaxanim f64",
+                  targets=targets)
+    if (problem := _problem(config, table, max(batches))) is None:
+        return [table]
+    run, dtypes = Runner(config, table), sorted(config.dtypes, key=lambda d: d != "float64")
+    skel64 = problem.skeleton
+    ref = _Reference(lambda: _outputs(jax.jit(jax.vmap(functools.partial(forward_kinematics, skel64)))(
+        *problem.jax_inputs(jnp.float64, max(batches)))))
+    table.notes.extend(_fk_validation_notes(config, problem))
+    pin = pinocchio(run, skel64, _PIN_FK)
+    for dtype in dtypes:
+        skel = _cast(skel64, dtype)
+        naive = jax.vmap(functools.partial(naive_fk, skel))
+        for b in batches:
+            q_in, m_in = problem.jax_inputs(dtype, b), problem.jax_inputs(dtype, b, matrices=True)
+            e = lambda out, b=b: _max_err(zip(_outputs(out), ref.get(b)))  # noqa: E731
+            ours = lambda: jax.vmap(functools.partial(forward_kinematics, skel))  # noqa: E731
+            np_args = (skel64.parents, skel64.end_site_parents, np.asarray(skel64.end_site_offsets, dtype),
+                       problem.mats[:b].astype(dtype), problem.trans[:b].astype(dtype))
+            for impl, fn, args, acc, n, note in (
+                    (_FK_REF, ours(), q_in, (lambda out, b=b: ref.record(b, *_outputs(out)))
+                     if dtype == "float64" else e, None, "jit(vmap(forward_kinematics)), wxyz [B,31,4]"),
+                    ("jaxanim (matrices)", ours(), m_in, e, None, "jit(vmap(forward_kinematics)), [B,31,3,3]"),
+                    ("naive JAX", naive, m_in, e, None,
+                     "jit(vmap(naive_fk)): Python loop, one matmul per joint, [B,31,3,3]"),
+                    ("numpy", numpy_peer.forward_kinematics, np_args, e, b,
+                     "vectorized over the batch, loop over joints, [B,31,3,3]")):
+                run.add(impl, dtype, b, lambda: _row(run, impl, fn, args, dtype, b, acc, note, n),
+                        peer=not impl.startswith("jaxanim"))
+            if pin is not None and dtype == dtypes[0]:
+                n, qs, k = _pin_inputs(run, problem, b)
+                acc = lambda _, b=b: _max_err(zip(pinocchio_peer.positions(pin, qs[:k]),  # noqa: E731
+                                                  (a[:k] for a in ref.get(b))))
+                run.add(_PIN_FK, "float64", b, lambda: _row(
+                    run, _PIN_FK, pinocchio_peer.fk_loop, (pin, qs), "float64", b, acc,
+                    "Python loop over configurations; joints only (oMi), no End Sites", n), peer=True)
+    return [table]
 
 
 def _outputs(out) -> tuple:  # what FK's accuracy is judged on
@@ -290,19 +234,16 @@ def _outputs(out) -> tuple:  # what FK's accuracy is judged on
 
 def _fk_validation_notes(config, problem: Problem) -> list[str]:
     """jaxanim float64 and the Pinocchio model against the shared FK reference on the clip's frames."""
-    path = pathlib.Path(config.data_dir) / REFERENCE
-    if not path.is_file():
+    path = config.data_file(REFERENCE)
+    if isinstance(path, str):
         return [f"shared FK reference `{REFERENCE}` not found: the reference check was not run."]
     ref = np.load(path)
     want = (ref["positions"], ref["end_site_positions"])
-    rot = jnp.asarray(problem.motion.rotations, dtype=jnp.float64)
-    tr = jnp.asarray(problem.motion.translations, dtype=jnp.float64)
+    rot, tr = (jnp.asarray(a, dtype=jnp.float64) for a in (problem.motion.rotations, problem.motion.translations))
     out = jax.jit(jax.vmap(functools.partial(forward_kinematics, problem.skeleton)))(rot, tr)
     notes = [f"jaxanim float64 vs the shared reference `{REFERENCE}` ({rot.shape[0]} clip frames): max abs "
              f"position error {_max_err(zip(_outputs(out), want)):.2e}."]
     try:
-        from .peers import pinocchio_peer
-
         ps = pinocchio_peer.build_model(problem.skeleton)
     except PeerUnavailable:
         return notes
@@ -319,47 +260,45 @@ def run_jacobian(config) -> list[Table]:
     batches = config.batches_for(JACOBIAN_BATCHES)
     sites = JACOBIAN_SITES
     description = (
-        f"Geometric Jacobian `[5, 6, 96]` of {', '.join(f'`{s}`' for s in sites)} on the CMU skeleton: rows "
-        "`[linear; angular]` in world axes, columns the root translation then a rotation-vector increment of every "
-        "local rotation in its parent frame (`R_j <- exp(d_j) R_j`). Same poses as `fk`. The autodiff rows "
-        "differentiate FK after that perturbation (angular rows `vee(dR R^T)`), through jaxanim's "
-        "`forward_kinematics` or through the naive loop FK. Accuracy: max abs difference from `jax.jacfwd` of "
-        "jaxanim's FK in float64 (\"reference\"). Pinocchio's columns (root twist in the root frame, joint angular "
-        "velocities in the joint frames) are converted to these for the check only; its timed loop is "
-        "`computeJointJacobians` + 5 × `getFrameJacobian(LOCAL_WORLD_ALIGNED)`.")
+        f"Geometric Jacobian `[5, 6, 96]` of {', '.join(f'`{s}`' for s in sites)} on the CMU skeleton (poses of `fk`): "
+        "rows `[linear; angular]` in world axes, columns the root translation then a rotation-vector increment of "
+        "every local rotation in its parent frame (`R_j <- exp(d_j) R_j`). Autodiff rows differentiate FK (jaxanim's "
+        "or the naive loop) after that perturbation (angular rows `vee(dR R^T)`). Accuracy: max abs difference from "
+        "`jax.jacfwd` of jaxanim's FK in float64 (\"reference\"); Pinocchio's `LOCAL_WORLD_ALIGNED` columns (root "
+        "twist in the root frame, joint angular velocities in the joint frames) are converted for the check only.")
     targets = [Target("Jacobian of 5 end effectors ≤ 2 µs per character at batch 1024 in float64",
                       sel("jaxanim", "float64", 1024, exact=True), 2.0)]
     impls = [("jaxanim", None, None, False, "jit(vmap(jacobian)), analytic"),
              (_JAC_REF, jax.jacfwd, None, True, "jit(vmap(jacfwd(perturbed jaxanim FK)))"),
              ("jacrev of jaxanim FK", jax.jacrev, None, True, "jit(vmap(jacrev(perturbed jaxanim FK)))"),
-             ("jacfwd of naive FK", jax.jacfwd, _naive_fk_skeleton, True, "jit(vmap(jacfwd(perturbed naive_fk)))"),
-             ("jacrev of naive FK", jax.jacrev, _naive_fk_skeleton, True, "jit(vmap(jacrev(perturbed naive_fk)))")]
-
-    def body(run: Runner, problem: Problem, dtypes: list[str]) -> None:
-        skel64 = problem.skeleton
-        ref = _Reference(lambda: (jax.jit(jax.vmap(lambda q, t: autodiff_jacobian(skel64, q, t, sites)))(
-            *problem.jax_inputs(jnp.float64, max(batches))),))
-        pin_mod, pin = pinocchio(run, skel64, _PIN_JAC)
-        for dtype in dtypes:
-            skel = _cast(problem.skeleton, dtype)
-            for b in batches:
-                args = problem.jax_inputs(dtype, b)
-                for impl, jac, fk, peer, note in impls:
-                    fn = (jax.vmap(lambda q, t: jacobian(skel, q, t, sites)) if jac is None else
-                          jax.vmap(functools.partial(autodiff_jacobian, skel, sites=sites, jac=jac, fk=fk)))
-                    acc = ((lambda out, b=b: ref.record(b, out)) if impl == _JAC_REF and dtype == "float64" else
-                           (lambda out, b=b: _max_err([(out, ref.get(b)[0])])))
-                    run.add(impl, dtype, b, lambda: _jax_row(run, impl, fn, args, dtype, b, acc, note), peer=peer)
-                if pin is not None and dtype == dtypes[0]:
-                    n, qs, k = _pin_inputs(run, pin_mod, problem, b)
-                    fids = [pin.frame_ids[s] for s in sites]
-                    conv = lambda: pin_mod.to_parent_frame_columns(  # noqa: E731
-                        pin_mod.frame_jacobians(pin, qs[:k], fids), problem.mats[:k])
-                    run.add(_PIN_JAC, "float64", b, lambda: _loop_row(
-                        run, _PIN_JAC, pin_mod.jacobian_loop, (pin, qs, fids), b, n,
-                        _max_err([(conv(), ref.get(b)[0][:k])]),
-                        "Python loop: computeJointJacobians + 5 × getFrameJacobian; columns converted for the check"),
-                        peer=True)
-
-    return _bench(config, "jacobian", "Jacobian of 5 end effectors (31-joint CMU skeleton)", description,
-                  "max abs err vs jacfwd f64", batches, targets, body)
+             ("jacfwd of naive FK", jax.jacfwd, naive_fk, True, "jit(vmap(jacfwd(perturbed naive_fk)))"),
+             ("jacrev of naive FK", jax.jacrev, naive_fk, True, "jit(vmap(jacrev(perturbed naive_fk)))")]
+    table = Table("jacobian", "Jacobian of 5 end effectors (31-joint CMU skeleton)", description,
+                  "max abs err vs jacfwd f64", targets=targets)
+    if (problem := _problem(config, table, max(batches))) is None:
+        return [table]
+    run, dtypes = Runner(config, table), sorted(config.dtypes, key=lambda d: d != "float64")
+    skel64 = problem.skeleton
+    ref = _Reference(lambda: (jax.jit(jax.vmap(lambda q, t: autodiff_jacobian(skel64, q, t, sites)))(
+        *problem.jax_inputs(jnp.float64, max(batches))),))
+    pin = pinocchio(run, skel64, _PIN_JAC)
+    for dtype in dtypes:
+        skel = _cast(skel64, dtype)
+        for b in batches:
+            args = problem.jax_inputs(dtype, b)
+            for impl, jac, fk, peer, note in impls:
+                fn = (jax.vmap(lambda q, t: jacobian(skel, q, t, sites)) if jac is None else
+                      jax.vmap(functools.partial(autodiff_jacobian, skel, sites=sites, jac=jac, fk=fk)))
+                acc = ((lambda out, b=b: ref.record(b, out)) if impl == _JAC_REF and dtype == "float64" else
+                       (lambda out, b=b: _max_err([(out, ref.get(b)[0])])))
+                run.add(impl, dtype, b, lambda: _row(run, impl, fn, args, dtype, b, acc, note), peer=peer)
+            if pin is not None and dtype == dtypes[0]:
+                n, qs, k = _pin_inputs(run, problem, b)
+                fids = [pin.frame_ids[s] for s in sites]
+                acc = lambda _, b=b: _max_err([(pinocchio_peer.to_parent_frame_columns(  # noqa: E731
+                    pinocchio_peer.frame_jacobians(pin, qs[:k], fids), problem.mats[:k]), ref.get(b)[0][:k])])
+                run.add(_PIN_JAC, "float64", b, lambda: _row(
+                    run, _PIN_JAC, pinocchio_peer.jacobian_loop, (pin, qs, fids), "float64", b, acc, "Python "
+                    "loop: computeJointJacobians + 5 × getFrameJacobian; columns converted for the check", n),
+                    peer=True)
+    return [table]

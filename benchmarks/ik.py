@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import pathlib
-import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
@@ -14,20 +13,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from scipy.spatial.transform import Rotation
 
 import solvers
 from jaxanim import read_bvh
 from jaxanim.ik import Target as IKTarget, solve_ik, solve_ik_ccd
 
-from .fk import CLIP, _axis_quat_np, _cast, _quat_mul_np, pinocchio
-from .peers import require
+from .fk import CLIP, _cast, pinocchio
+from .peers import pinocchio_peer, require
 from .peers import numpy_fk as numpy_peer
 from .report import Row, Table, Target, sel
 from .timing import Runner, status_counts
 
-__all__ = ["EFFECTORS", "IK_BATCHES", "IKEvaluation", "ORIENTATION_TOLERANCE", "POSITION_TOLERANCE_REL",
-           "ProblemSet", "batched_solver", "draw_problems", "evaluate", "load_skeleton", "make_problems", "run_ik",
-           "skeleton_height"]
+__all__ = ["EFFECTORS", "IKEvaluation", "ORIENTATION_TOLERANCE", "ProblemSet", "batched_solver", "draw_problems",
+           "evaluate", "load_skeleton", "make_problems", "run_ik", "skeleton_height"]
 
 IK_BATCHES = (1, 64, 1024, 4096)
 EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "Head_End")
@@ -46,48 +45,26 @@ CLIK_DAMPING = 1e-4
 _SLOW_MAX_BATCH = 1024  # peers and baselines are not run above this in full mode (time budget)
 
 
-def _matrix_to_quat_np(R: np.ndarray) -> np.ndarray:
-    """wxyz unit quaternions (w >= 0) of rotation matrices ``[..., 3, 3]`` (Shepperd's method)."""
-    m = {(i, j): np.asarray(R, np.float64)[..., i, j] for i in range(3) for j in range(3)}
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    cands = np.stack([  # candidate k is 4 q_k q: divide by the largest |q_k|
-        np.stack([1 + tr, m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]], -1),
-        np.stack([m[2, 1] - m[1, 2], 1 + m[0, 0] - m[1, 1] - m[2, 2], m[0, 1] + m[1, 0], m[0, 2] + m[2, 0]], -1),
-        np.stack([m[0, 2] - m[2, 0], m[0, 1] + m[1, 0], 1 - m[0, 0] + m[1, 1] - m[2, 2], m[1, 2] + m[2, 1]], -1),
-        np.stack([m[1, 0] - m[0, 1], m[0, 2] + m[2, 0], m[1, 2] + m[2, 1], 1 - m[0, 0] - m[1, 1] + m[2, 2]], -1),
-    ], axis=-2)
-    k = np.argmax(np.stack([tr, m[0, 0], m[1, 1], m[2, 2]], -1), axis=-1)
-    q = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def _rotation_angle_np(R: np.ndarray) -> np.ndarray:
-    """Angle of rotation matrices: ``atan2(|vee(R - R^T)| / 2, (tr R - 1) / 2)`` (exact at small angles)."""
-    s = 0.5 * np.linalg.norm(np.stack(
-        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1), axis=-1)
-    return np.arctan2(s, 0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1))
-
-
-def _np_fk(skeleton, R: np.ndarray, t: np.ndarray):
-    """Float64 numpy FK of ``[B, J, 3, 3]`` / ``[B, J, 3]`` poses: ``(R_world [B, J, 3, 3], p_all [B, sites, 3])``."""
-    out = numpy_peer.forward_kinematics(skeleton.parents, skeleton.end_site_parents,
-                                        np.asarray(skeleton.end_site_offsets, dtype=np.float64), R, t)
-    return out.rotations, np.concatenate([out.positions, out.end_site_positions], axis=1)
+def _matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``[..., 3, 3]`` (float64) of wxyz quaternions ``[..., 4]``, normalized first."""
+    q = np.asarray(q, np.float64)
+    return Rotation.from_quat(q.reshape(-1, 4)[:, [1, 2, 3, 0]]).as_matrix().reshape(q.shape[:-1] + (3, 3))
 
 
 def _fk_sites(skeleton, quats: np.ndarray, trans: np.ndarray, sites: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     """Float64 numpy FK of ``[B, J, 4]`` wxyz / ``[B, J, 3]`` poses: site positions and rotations."""
-    R, p_all = _np_fk(skeleton, numpy_peer.quat_to_matrix(np.asarray(quats, dtype=np.float64)),
-                      np.asarray(trans, dtype=np.float64))
+    out = numpy_peer.forward_kinematics(skeleton.parents, skeleton.end_site_parents,
+                                        np.asarray(skeleton.end_site_offsets, dtype=np.float64), _matrices(quats),
+                                        np.asarray(trans, dtype=np.float64))
     J, idx = skeleton.num_joints, [skeleton.site_index(s) for s in sites]
-    return p_all[:, idx], R[:, [i if i < J else skeleton.end_site_parents[i - J] for i in idx]]
+    p_all = np.concatenate([out.positions, out.end_site_positions], axis=1)
+    return p_all[:, idx], out.rotations[:, [i if i < J else skeleton.end_site_parents[i - J] for i in idx]]
 
 
 def skeleton_height(skeleton) -> float:
     """The vertical (y) extent of the rest pose's joints and End Sites, file units."""
-    y = _np_fk(skeleton, np.broadcast_to(np.eye(3), (1, skeleton.num_joints, 3, 3)),
-               np.asarray(skeleton.offsets, dtype=np.float64)[None])[1][0, :, 1]
+    y = _fk_sites(skeleton, np.asarray(skeleton.rest_rotations(jnp.float64))[None], np.asarray(skeleton.offsets)[None],
+                  skeleton.names + skeleton.end_site_names)[0][0, :, 1]
     return float(y.max() - y.min())
 
 
@@ -114,17 +91,14 @@ class ProblemSet:
         return dataclasses.replace(self, **{k: getattr(self, k)[:batch] for k in (
             "goal_rotations", "goal_translations", "positions", "orientations", "rotation_matrices")})
 
-    def targets(self, dtype: Any, batch: int | None = None) -> tuple:
-        """The first ``batch`` problems' :class:`jaxanim.ik.Target` s, with a leading batch axis."""
-        b = self.batch if batch is None else batch
-        return tuple(IKTarget(s, jnp.asarray(self.positions[:b, k], dtype),
-                              jnp.asarray(self.orientations[:b, k], dtype), jnp.ones((b,), dtype))
-                     for k, s in enumerate(self.sites))
+    def targets(self, dtype: Any) -> tuple:
+        """The problems' :class:`jaxanim.ik.Target` s, with a leading batch axis."""
+        return tuple(IKTarget(s, jnp.asarray(self.positions[:, k], dtype), jnp.asarray(self.orientations[:, k], dtype),
+                              jnp.ones((self.batch,), dtype)) for k, s in enumerate(self.sites))
 
-    def start(self, dtype: Any, batch: int | None = None) -> tuple[jax.Array, jax.Array]:
+    def start(self, dtype: Any) -> tuple[jax.Array, jax.Array]:
         """``(rotations [B, J, 4], translations [B, J, 3])`` of the start pose."""
-        b = self.batch if batch is None else batch
-        return tuple(jnp.asarray(np.broadcast_to(a, (b,) + a.shape), dtype)
+        return tuple(jnp.asarray(np.broadcast_to(a, (self.batch,) + a.shape), dtype)
                      for a in (self.start_rotations, self.start_translations))
 
 
@@ -133,16 +107,15 @@ def draw_problems(skeleton, batch: int, seed: int = SEED, sites: Sequence[str] =
     J = skeleton.num_joints
     rng = np.random.default_rng(seed)
     ang = np.deg2rad(rng.uniform(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, size=(batch, J, 3)))
-    q = _quat_mul_np(_quat_mul_np(_axis_quat_np(ang[..., 2], 2), _axis_quat_np(ang[..., 1], 1)),
-                     _axis_quat_np(ang[..., 0], 0))  # Rz(a) Ry(b) Rx(c) times the identity rest rotations
-    root = rng.normal(size=(batch, 4))  # uniform on SO(3)
+    q = Rotation.from_euler("ZYX", ang[..., ::-1].reshape(-1, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(batch, J, 4)
+    root = rng.normal(size=(batch, 4))  # Rz(a) Ry(b) Rx(c) times the identity rest rotations; root uniform on SO(3)
     q[:, 0] = root / np.linalg.norm(root, axis=-1, keepdims=True)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     offsets = np.asarray(skeleton.offsets, dtype=np.float64)
     t = np.broadcast_to(offsets, (batch, J, 3)).copy()
     t[:, 0] += ROOT_TRANSLATION_STD * rng.normal(size=(batch, 3))
     pos, mats = _fk_sites(skeleton, q, t, sites)
-    return ProblemSet(skeleton, tuple(sites), q, t, pos, _matrix_to_quat_np(mats), mats,
+    quats = Rotation.from_matrix(mats.reshape(-1, 3, 3)).as_quat(canonical=True)[:, [3, 0, 1, 2]]  # w >= 0
+    return ProblemSet(skeleton, tuple(sites), q, t, pos, quats.reshape(mats.shape[:-2] + (4,)), mats,
                       np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (J, 1)), offsets.copy(), skeleton_height(skeleton))
 
 
@@ -153,25 +126,19 @@ def make_problems(skeleton, batch: int, seed: int = SEED, dtype: Any = jnp.float
 
 
 class IKEvaluation(NamedTuple):
-    """``position_errors [B, sites]`` (file units), ``orientation_errors [B, sites]`` (rad) from an
-    independent float64 numpy FK, ``success [B]`` (every error under its tolerance) and the tolerances."""
+    """``position_errors [B, sites]`` (file units), ``orientation_errors [B, sites]`` (rad) from an independent
+    float64 numpy FK, ``success [B]`` (every error under its tolerance) and its ``rate``."""
 
     position_errors: np.ndarray
     orientation_errors: np.ndarray
     success: np.ndarray
-    position_tolerance: float
-    orientation_tolerance: float
+    rate: float
 
-    @property
-    def rate(self) -> float:
-        return float(np.mean(self.success)) if self.success.size else float("nan")
-
-    def p98(self) -> tuple[float, float]:  # over problems, of each problem's worst position / orientation error
-        return tuple(float(np.percentile(e.max(axis=1), 98)) for e in (self.position_errors, self.orientation_errors))
+    def p98(self) -> str:  # over problems, of each problem's worst position / orientation error
+        return " / ".join(f"{np.percentile(e.max(axis=1), 98):.1e}" for e in self[:2])
 
 
-def evaluate(skeleton, targets, rotations, translations, *, position_tolerance: float | None = None,
-             orientation_tolerance: float = ORIENTATION_TOLERANCE) -> IKEvaluation:
+def evaluate(skeleton, targets, rotations, translations) -> IKEvaluation:
     """Errors and success of poses ``[B, J, 4]`` / ``[B, J, 3]`` against batched ``targets`` (a tuple of
     :class:`jaxanim.ik.Target` or a :class:`ProblemSet`); a non-finite pose fails (errors ``inf``)."""
     if isinstance(targets, ProblemSet):
@@ -179,22 +146,22 @@ def evaluate(skeleton, targets, rotations, translations, *, position_tolerance: 
     else:
         sites = tuple(t.site for t in targets)
         goal_p = np.stack([np.asarray(t.position, np.float64) for t in targets], axis=1)
-        goal_R = numpy_peer.quat_to_matrix(np.stack([np.asarray(t.orientation, np.float64) for t in targets], axis=1))
+        goal_R = _matrices(np.stack([np.asarray(t.orientation, np.float64) for t in targets], axis=1))
     b = goal_p.shape[0]
     q, t = np.asarray(rotations, np.float64)[:b], np.asarray(translations, np.float64)[:b]
     finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(t).all(axis=(1, 2))
     p, R = _fk_sites(skeleton, np.where(finite[:, None, None], q, np.array([1.0, 0, 0, 0])),
                      np.where(finite[:, None, None], t, 0.0), sites)
     pe = np.where(finite[:, None], np.linalg.norm(p - goal_p, axis=-1), np.inf)
-    oe = np.where(finite[:, None], _rotation_angle_np(np.einsum("bsij,bskj->bsik", R, goal_R)), np.inf)
-    pt = POSITION_TOLERANCE_REL * skeleton_height(skeleton) if position_tolerance is None else float(position_tolerance)
-    ok = (pe < pt).all(axis=1) & (oe < orientation_tolerance).all(axis=1)
-    return IKEvaluation(pe, oe, ok, pt, float(orientation_tolerance))
+    angle = Rotation.from_matrix(np.einsum("bsij,bskj->bsik", R, goal_R).reshape(-1, 3, 3)).magnitude()
+    oe = np.where(finite[:, None], angle.reshape(pe.shape), np.inf)
+    pt = POSITION_TOLERANCE_REL * skeleton_height(skeleton)
+    ok = (pe < pt).all(axis=1) & (oe < ORIENTATION_TOLERANCE).all(axis=1)
+    return IKEvaluation(pe, oe, ok, float(np.mean(ok)) if ok.size else float("nan"))
 
 
 def batched_solver(skeleton, solve: Callable | None = None, **kwargs) -> Callable:
-    """A fresh ``jax.jit(jax.vmap(solve(skeleton, targets, rotations, translations, **kwargs)))``;
-    ``solve`` defaults to :func:`jaxanim.ik.solve_ik`."""
+    """A fresh ``jax.jit(jax.vmap(...))`` of ``solve(skeleton, targets, q, t, **kwargs)`` (default ``solve_ik``)."""
     solve = solve_ik if solve is None else solve
     return jax.jit(jax.vmap(lambda targets, q, t: solve(skeleton, targets, q, t, **kwargs)))
 
@@ -214,21 +181,11 @@ def _ik(solver) -> dict:
     return dict(solve=solve_ik, solver=solver, regularization=REGULARIZATION)
 
 
-def _optx(dtype, name: str) -> dict:
-    return _ik(solvers.OptimistixSolver(getattr(optx, name)(**_tol(dtype)), max_steps=MAX_STEPS))
-
-
 def _jaxopt(dtype) -> dict:
-    with warnings.catch_warnings():  # jaxopt announces on import that it is unmaintained
-        warnings.simplefilter("ignore")
-        require("jaxopt", "pip install 'jaxanim[jaxopt]'")
+    require("jaxopt", "pip install 'jaxanim[jaxopt]'", quiet=True)  # it announces on import that it is unmaintained
     atol = 1e-8 if jnp.dtype(dtype) == jnp.float64 else 1e-3  # |J^T r|_2
     return _ik(solvers.JaxoptSolver("LevenbergMarquardt", atol=atol, max_steps=MAX_STEPS))
 
-
-def _ccd(dtype, problems: ProblemSet) -> dict:
-    return dict(solve=solve_ik_ccd, max_sweeps=CCD_MAX_SWEEPS, fixed_sweeps=False,
-                position_tolerance=0.5 * problems.position_tolerance, orientation_tolerance=0.5 * ORIENTATION_TOLERANCE)
 
 _LM_ADAPTIVE = "jaxanim LM (adaptive)"
 _LM_FIXED = f"jaxanim LM (fixed {FIXED_STEPS})"
@@ -244,13 +201,18 @@ _METHODS = (
     (_LM_FIXED, lambda d, p: _ik(solvers.LevenbergMarquardt(**_tol(d), max_steps=FIXED_STEPS, fixed_steps=True)),
      f"solvers.LevenbergMarquardt(fixed_steps=True): lax.scan of {FIXED_STEPS} iterations (iterations = steps "
      "until converged; finished problems are frozen)", False, None),
-    ("optimistix LM", lambda d, p: _optx(d, "LevenbergMarquardt"),
+    ("optimistix LM", lambda d, p: _ik(solvers.OptimistixSolver(optx.LevenbergMarquardt(**_tol(d)),
+                                                                max_steps=MAX_STEPS)),
      f"OptimistixSolver(optx.LevenbergMarquardt), ≤ {MAX_STEPS} steps, {_TOL}", True, _SLOW_MAX_BATCH),
-    ("optimistix GN", lambda d, p: _optx(d, "GaussNewton"),
-     f"OptimistixSolver(optx.GaussNewton) (default linear solver), ≤ {MAX_STEPS} steps, {_TOL}", True, _SLOW_MAX_BATCH),
+    ("optimistix GN", lambda d, p: _ik(solvers.OptimistixSolver(optx.GaussNewton(**_tol(d)), max_steps=MAX_STEPS)),
+     f"OptimistixSolver(optx.GaussNewton) (default linear solver), ≤ {MAX_STEPS} steps, {_TOL}", True,
+     _SLOW_MAX_BATCH),
     ("jaxopt LM", lambda d, p: _jaxopt(d), "JaxoptSolver('LevenbergMarquardt'): Cholesky, |J^T r| ≤ 1e-8 (f64) / "
      f"1e-3 (f32), ≤ {MAX_STEPS} steps", True, _SLOW_MAX_BATCH),
-    (_CCD, _ccd, f"jaxanim.ik.solve_ik_ccd, while_loop, ≤ {CCD_MAX_SWEEPS} sweeps, stops at half the success "
+    (_CCD, lambda d, p: dict(solve=solve_ik_ccd, max_sweeps=CCD_MAX_SWEEPS, fixed_sweeps=False,
+                             position_tolerance=0.5 * p.position_tolerance,
+                             orientation_tolerance=0.5 * ORIENTATION_TOLERANCE),
+     f"jaxanim.ik.solve_ik_ccd, while_loop, ≤ {CCD_MAX_SWEEPS} sweeps, stops at half the success "
      "thresholds; iterations = sweeps", False, _SLOW_MAX_BATCH),
     (_JT, lambda d, p: _ik(solvers.GradientDescent(**_tol(d), max_steps=JT_MAX_STEPS, fixed_steps=False,
                                                    max_backtracks=8)),
@@ -259,44 +221,38 @@ _METHODS = (
 )
 
 
-def _fmt_err(ev: IKEvaluation) -> str:
-    return "{:.1e} / {:.1e}".format(*ev.p98())
-
-
-def _iterations(steps) -> str:
-    s = np.asarray(steps)
-    return f"iterations {s.mean():.1f} / {int(s.max())} (mean / max)"
+def _iterations(steps: np.ndarray) -> str:
+    return f"iterations {steps.mean():.1f} / {int(steps.max())} (mean / max)"
 
 
 def _jax_row(run: Runner, impl: str, make: Callable, note: str, problems: ProblemSet, dtype: str, b: int) -> Row:
-    kw = make(dtype, problems)
-    skel = _cast(problems.skeleton, dtype)
-    args = (problems.targets(dtype, b), *problems.start(dtype, b))
-    out, tm, comp = run.jax(batched_solver(skel, **kw), *args)
+    sub = problems.first(b)
+    out, tm, comp = run.jax(batched_solver(_cast(problems.skeleton, dtype), **make(dtype, problems)),
+                            sub.targets(dtype), *sub.start(dtype))
     if out.rotations.dtype != jnp.dtype(dtype):
         raise TypeError(f"the {dtype} solve returned {out.rotations.dtype} rotations")
-    ev = evaluate(problems.skeleton, problems.first(b), out.rotations, out.translations)
+    ev = evaluate(problems.skeleton, sub, out.rotations, out.translations)
     steps = np.asarray(out.stats["num_steps"])
-    return run.row(impl, dtype, b, tm, compile_s=comp, accuracy=_fmt_err(ev), success=ev.rate,
+    return run.row(impl, dtype, b, tm, compile_s=comp, accuracy=ev.p98(), success=ev.rate,
                    status=status_counts(out.result), note=f"{_iterations(steps)}; {note}", extra=dict(steps=steps))
 
 
-def _pin_row(run: Runner, pc, pin, problems: ProblemSet, b: int) -> Row:
+def _pin_row(run: Runner, pin, problems: ProblemSet, b: int) -> Row:
     n = min(b, run.config.loop_cap)
     prev = [r.us_per_char for r in run.table.rows if r.implementation == _PIN and r.measured]
     if prev:  # keep one call within about half the row budget
         n = min(n, max(64, int(0.5 * run.config.max_row_s / (max(prev) * 1e-6))))
     sub = problems.first(n)
-    q0s = pc.start_configurations(np.broadcast_to(sub.start_rotations, (n,) + sub.start_rotations.shape),
-                                  np.broadcast_to(sub.start_translations[0], (n, 3)))
-    loop = functools.partial(pc.clik_loop, damping=CLIK_DAMPING, max_iterations=CLIK_MAX_ITERATIONS,
+    q0s = list(pinocchio_peer.configurations(np.broadcast_to(sub.start_rotations, (n,) + sub.start_rotations.shape),
+                                             np.broadcast_to(sub.start_translations[0], (n, 3))))
+    loop = functools.partial(pinocchio_peer.clik_loop, damping=CLIK_DAMPING, max_iterations=CLIK_MAX_ITERATIONS,
                              position_tolerance=sub.position_tolerance, orientation_tolerance=ORIENTATION_TOLERANCE)
     (qs, its), tm = run.python(loop, pin, q0s, [pin.frame_ids[s] for s in sub.sites], sub.positions,
                                sub.rotation_matrices)
-    ev = evaluate(problems.skeleton, sub, *pc.to_poses(qs, np.asarray(problems.skeleton.offsets)))
+    ev = evaluate(problems.skeleton, sub, *pinocchio_peer.to_poses(qs, np.asarray(problems.skeleton.offsets)))
     note = (f"{_iterations(its)}; Python loop, damped least squares lambda={CLIK_DAMPING:g}, ≤ {CLIK_MAX_ITERATIONS} "
             "iterations, stops at the success thresholds" + (f"; timed on {n} of {b} problems" if n < b else ""))
-    return run.row(_PIN, "float64", b, tm, n, accuracy=_fmt_err(ev), success=ev.rate, note=note)
+    return run.row(_PIN, "float64", b, tm, n, accuracy=ev.p98(), success=ev.rate, note=note)
 
 
 def _iteration_note(table: Table) -> list[str]:
@@ -317,16 +273,15 @@ def run_ik(config) -> list[Table]:
     """The ``ik`` benchmark (see the module docstring)."""
     batches = config.batches_for(IK_BATCHES)
     b_t = 1024 if 1024 in batches else max(batches)
-    own = sel((_LM_ADAPTIVE, _LM_FIXED), exact=True)
+    lm = (_LM_ADAPTIVE, _LM_FIXED)
+    own, own_b, own64 = sel(lm, exact=True), sel(lm, batch=b_t, exact=True), sel(lm, "float64", b_t, exact=True)
     table = Table("ik", "Inverse kinematics: 5 effectors, position + orientation (31-joint CMU skeleton)",
                   accuracy_label="p98 error: position / orientation", targets=[
-                      Target(f"≥ 99.5 % success at batch {b_t} in float32 and float64 (own LM)",
-                             lambda r: own(r) and r.batch == b_t, 0.995, "success", worst=True),
-                      Target(f"own LM ≤ 100 µs per problem at batch {b_t} in float64",
-                             lambda r: own(r) and r.batch == b_t and r.dtype == "float64", 100.0),
-                      Target(f"own LM ≥ 20x the throughput of the Pinocchio CLIK loop at batch {b_t}, float64",
-                             lambda r: own(r) and r.batch == b_t and r.dtype == "float64", 20.0,
-                             versus=sel(_PIN, "float64", b_t)),
+                      Target(f"≥ 99.5 % success at batch {b_t} in float32 and float64 (own LM)", own_b, 0.995,
+                             "success", worst=True),
+                      Target(f"own LM ≤ 100 µs per problem at batch {b_t} in float64", own64, 100.0),
+                      Target(f"own LM ≥ 20x the throughput of the Pinocchio CLIK loop at batch {b_t}, float64", own64,
+                             20.0, versus=sel(_PIN, "float64", b_t)),
                       Target(f"optimistix LM within 3x of the own adaptive LM at batch {b_t}, float64 (speedup "
                              "≥ 0.33x)", sel("optimistix LM", "float64", b_t), 1 / 3,
                              versus=sel(_LM_ADAPTIVE, "float64", b_t)),
@@ -337,21 +292,18 @@ def run_ik(config) -> list[Table]:
         return [table]
     problems = draw_problems(skel, max(batches), SEED)
     table.description = (
-        f"Random reachable targets on the 31-joint CMU skeleton (`{CLIP}`, 96 degrees of freedom): each problem is "
-        f"the FK of a random pose (every joint within ±{MAX_ANGLE_DEG:g}° per axis of the rest pose, the root "
-        f"rotated uniformly at random and translated by N(0, {ROOT_TRANSLATION_STD}²) per axis, seed {SEED}), and "
-        f"its targets are the world position and orientation of {len(EFFECTORS)} effectors "
-        f"({', '.join(f'`{s}`' for s in EFFECTORS)}). Every solve starts from the rest pose; `solve_ik` rows use "
-        "`regularization=0` and the tolerances in their notes (CLIK stops at the success thresholds, CCD at half "
-        "of them). Rows are `jax.jit(jax.vmap(solve))` over the batch, compiled ahead of time (compile column); "
-        "Pinocchio CLIK is a Python loop over problems (float64). µs / char = µs per problem. **Success**: every "
-        f"position error < {POSITION_TOLERANCE_REL:g} × skeleton height ({problems.height:.2f} units, so "
-        f"{problems.position_tolerance:.4f}) and every orientation error < {ORIENTATION_TOLERANCE} rad, from an "
-        "independent float64 numpy FK of the returned poses (not the solvers' flags). Error column: 98th "
-        "percentile over problems of each problem's worst position error (units) / orientation error (rad). "
-        "Iterations (solver steps; CCD sweeps; CLIK updates) are in the notes column.")
+        f"Random reachable targets on the 31-joint CMU skeleton (`{CLIP}`, 96 degrees of freedom): world positions and "
+        f"orientations of {len(EFFECTORS)} effectors ({', '.join(f'`{s}`' for s in EFFECTORS)}) after FK of a random "
+        f"pose (joints within ±{MAX_ANGLE_DEG:g}° per axis of the rest pose, the root rotated uniformly and translated "
+        f"by N(0, {ROOT_TRANSLATION_STD}²) per axis; seed {SEED}). Solves start from the rest pose; `solve_ik` rows "
+        "use `regularization=0` and the tolerances in their notes. Rows are `jax.jit(jax.vmap(solve))`; Pinocchio "
+        "CLIK is a Python loop (float64). µs / char = µs per problem. **Success**: every position error < "
+        f"{POSITION_TOLERANCE_REL:g} × skeleton height ({problems.height:.2f} units, so "
+        f"{problems.position_tolerance:.4f}) and orientation error < {ORIENTATION_TOLERANCE} rad, by an independent "
+        "float64 numpy FK of the returned poses (not the solvers' flags). Error column: 98th percentile over problems "
+        "of each problem's worst position (units) / orientation (rad) error.")
     run = Runner(config, table)
-    pin_mod, pin = pinocchio(run, skel, _PIN, "pinocchio_clik")
+    pin = pinocchio(run, skel, _PIN)
     dtypes = sorted(config.dtypes, key=lambda d: d != "float64")
     for dtype in dtypes:
         for b in batches:
@@ -359,6 +311,6 @@ def run_ik(config) -> list[Table]:
                 run.add(impl, dtype, b, lambda: _jax_row(run, impl, make, note, problems, dtype, b), peer=peer,
                         max_batch=max_batch)
             if pin is not None and dtype == dtypes[0]:
-                run.add(_PIN, "float64", b, lambda: _pin_row(run, pin_mod, pin, problems, b), peer=True)
+                run.add(_PIN, "float64", b, lambda: _pin_row(run, pin, problems, b), peer=True)
     table.notes += _iteration_note(table)
     return [table]

@@ -1,12 +1,10 @@
-"""Optimal-control benchmark (``python -m benchmarks oc``): iLQR / DDP / LQR / DARE vs Crocoddyl and scipy,
-float64 only; each table's description says what is compared."""
+"""Optimal-control benchmark (``python -m benchmarks oc``): iLQR / DDP / LQR / DARE vs Crocoddyl and scipy, float64."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -17,16 +15,13 @@ from solvers.problems import LQProblem
 
 from .peers import crocoddyl_oc as co, require
 from .report import Row, Table, Target, format_seconds, sel
-from .timing import Runner, Timing, status_counts
+from .timing import Runner, Timing, status_counts, time_call
 
-__all__ = ["DARE_BATCHES", "OCSizes", "SWING_BATCHES", "UNICYCLE_BOUNDS", "UPRIGHT_TOLERANCE", "initial_states",
-           "make_dare_systems", "make_lq", "riccati_residual", "run_oc"]
+__all__ = ["OCSizes", "initial_states", "make_dare_systems", "make_lq", "riccati_residual", "run_oc"]
 
 SEED = 0
 UNICYCLE_X0 = (-1.0, -1.0, 1.0)
 UNICYCLE_BOUNDS = ((-2.0, -1.5), (2.0, 1.5))  # (u_min, u_max): speed, turn rate; the optimum leaves it
-SWING_BATCHES = (1, 64, 1024)
-DARE_BATCHES = (1, 64, 1024, 10_000)
 SWING_MAX_STEPS = {"pendulum": 100, "cart_pole": 300}
 ANGLE_INDEX = {"pendulum": 0, "cart_pole": 1}
 UPRIGHT_TOLERANCE = 0.1  # rad: success needs |theta_T - pi| below this
@@ -49,18 +44,17 @@ class OCSizes:
     lqr_methods: tuple[str, ...] = ("ilqr", "ddp")
     dare_n: int = 12
     dare_m: int = 4
-    dare_batches: tuple[int, ...] = DARE_BATCHES
+    dare_batches: tuple[int, ...] = (1, 64, 1024, 10_000)
     dare_scipy_cap: int = 512
     swing_problems: tuple[str, ...] = ("pendulum", "cart_pole")
-    swing_batches: tuple[int, ...] = SWING_BATCHES
+    swing_batches: tuple[int, ...] = (1, 64, 1024)
     swing_methods: tuple[str, ...] = ("ilqr", "ddp")
     swing_fixed: bool = True
     swing_T: int | None = None
 
 
 def make_lq(n: int = 37, m: int = 12, T: int = 100, seed: int = SEED) -> dict[str, np.ndarray]:
-    """A seeded LQ problem in Crocoddyl's ``ActionModelLQR`` terms (``A`` at spectral radius 1.02,
-    ``[[Q, N], [N', R]] = L L' + 0.1 I``, affine ``q, r``, drift ``f``; see the table's description)."""
+    """A seeded LQ problem in Crocoddyl's ``ActionModelLQR`` terms, ``[[Q, N], [N', R]] = L L' + 0.1 I``."""
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(n, n)) / np.sqrt(n)
     A *= 1.02 / np.abs(np.linalg.eigvals(A)).max()
@@ -69,13 +63,6 @@ def make_lq(n: int = 37, m: int = 12, T: int = 100, seed: int = SEED) -> dict[st
     W = L @ L.T + 0.1 * np.eye(n + m)
     return dict(A=A, B=B, Q=W[:n, :n], N=W[:n, n:], R=W[n:, n:], f=0.1 * rng.normal(size=n),
                 q=rng.normal(size=n), r=rng.normal(size=m), x0=rng.normal(size=n), T=T)
-
-
-def _lq_problem(d: dict[str, np.ndarray]):
-    tile = lambda z: jnp.asarray(np.broadcast_to(z, (d["T"],) + z.shape), jnp.float64)  # noqa: E731
-    return LQProblem(A=tile(d["A"]), B=tile(d["B"]), Q=tile(d["Q"]), R=tile(d["R"]), QT=jnp.asarray(d["Q"]),
-                     x0=jnp.asarray(d["x0"]), S=tile(d["N"].T), q=tile(d["q"]), r=tile(d["r"]), qT=jnp.asarray(d["q"]),
-                     c=tile(d["f"]), constant=jnp.zeros((), jnp.float64))
 
 
 def make_dare_systems(count: int, n: int = 12, m: int = 4, seed: int = SEED) -> tuple[np.ndarray, ...]:
@@ -116,30 +103,27 @@ def _rel(a: float, b: float) -> float:
     return abs(a - b) / max(abs(b), 1e-300)
 
 
-def _time_single(config, fn: Callable[[], Any]) -> tuple[Any, Timing, float]:
-    """``(first output, timing, slowest sample)`` of one call per sample (at least 15 within ``max_row_s``)."""
-    out = fn()
-    samples: list[float] = []
-    for _ in range(max(config.repeats, 15)):
-        t0 = time.perf_counter()
-        fn()
-        samples.append(time.perf_counter() - t0)
-        if sum(samples) > config.max_row_s and len(samples) >= 3:
-            break
-    return out, Timing(float(np.median(samples)), min(samples), len(samples)), max(samples)
-
-
 def _croc_single(run: Runner, impl: str, problem, solver: str, maxiter: int, accuracy: Callable, what: str) -> Row:
+    """One Crocoddyl ``solve`` from zero controls per sample, at least 15 samples within ``max_row_s``."""
     us0 = [np.zeros(problem.runningModels[0].nu)] * problem.T
     xs0 = problem.rollout(us0)
-    s = co.make_solver(problem, solver)
-    ok, tm, slowest = _time_single(run.config, lambda: s.solve(xs0, us0, maxiter, True, 1e-9))
-    its, cost = int(s.iter), float(s.cost)
+    s = getattr(co.load_crocoddyl(), solver)(problem)
+    ok = s.solve(xs0, us0, maxiter, True, 1e-9)
+    tm = time_call(s.solve, xs0, us0, maxiter, True, 1e-9, repeats=max(run.config.repeats, 15), warmup=0, number=1,
+                   max_total_s=run.config.max_row_s)
+    its, cost, slowest = int(s.iter), float(s.cost), max(tm.all)
     note = (f"{its} iteration{'s' if its != 1 else ''}, {format_seconds(tm.median / max(its, 1))} / iteration, cost "
             f"{cost:.12g}; {what}; {tm.samples} single-call samples: min {format_seconds(tm.min)}, median "
             f"{format_seconds(tm.median)}, max {format_seconds(slowest)}")
     return run.row(impl, "float64", 1, tm, accuracy=accuracy(cost, np.array(s.us)), success=float(ok), note=note,
                    extra=dict(cost=cost, its=its, slowest=slowest))
+
+
+def _solve(prob, method: str, **options) -> Callable:
+    """``(x0, us, args) -> solvers.<method>`` on ``prob``'s dynamics and costs (a new function: a fresh jit)."""
+    fn = getattr(solvers, method)
+    return lambda x0, us, args: fn(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost, args=args,
+                                   **options)
 
 
 def _jax_solve(run: Runner, impl: str, fn: Callable, args: tuple, b: int, accuracy: Callable, note: str,
@@ -159,51 +143,44 @@ def _jax_solve(run: Runner, impl: str, fn: Callable, args: tuple, b: int, accura
 
 def _unicycle_table(config, sz: OCSizes) -> Table:
     T = sz.unicycle_T
-    (l0, l1), (h0, h1) = UNICYCLE_BOUNDS
+    lo, hi = (np.asarray(b, np.float64) for b in UNICYCLE_BOUNDS)
     own, croc = sel(("jaxanim ilqr", "jaxanim ddp"), exact=True), sel(f"{_CROC} SolverDDP", exact=True)
     table = Table(
         "oc-unicycle", f"Optimal control: unicycle, T = {T}, one solve (Crocoddyl's ActionModelUnicycle)",
         accuracy_label="rel. cost diff vs Crocoddyl (box rows: BoxDDP)", description=(
             f"`solvers.problems.unicycle(T={T})` (exactly Crocoddyl's `ActionModelUnicycle`: dt = 0.1, cost 0.5 (10² "
-            f"|x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls. Box rows: u ∈ "
-            f"[{l0}, {h0}] × [{l1}, {h1}] (which the unbounded optimum leaves), `bounds=` vs `u_lb/u_ub` + SolverBoxDDP. "
-            f"Batch 1, float64, ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default tolerances (`jax.jit`, compiled "
-            "ahead of time), Crocoddyl th_stop 1e-9 (`solver.solve`, one call per sample, spread in the notes). "
-            "Crocoddyl uses first derivatives of the dynamics (as jaxanim ilqr); jaxanim ddp also second ones."),
+            f"|x|² + 1² |u|²) per knot, terminal 0.5 · 10² |x_T|²) from x0 = {UNICYCLE_X0}, zero controls; box rows: u "
+            f"∈ [{lo[0]}, {hi[0]}] × [{lo[1]}, {hi[1]}] (which the unbounded optimum leaves), `bounds=` vs `u_lb/u_ub` "
+            f"+ SolverBoxDDP. ≤ {UNICYCLE_MAX_STEPS} iterations; jaxanim default tolerances (`jax.jit`), Crocoddyl "
+            "th_stop 1e-9 (`solver.solve`, one call per sample, spread in the notes). Crocoddyl uses first "
+            "derivatives of the dynamics (as jaxanim ilqr); jaxanim ddp also second ones."),
         targets=[Target("one unicycle solve within 2x of Crocoddyl SolverDDP, fastest samples (speedup ≥ 0.5x)",
                         own, 0.5, "min_us", versus=croc),
                  Target("the same, medians (speedup ≥ 0.5x)", own, 0.5, "us", versus=croc)])
     run = Runner(config, table)
-    lo, hi = (np.asarray(b, np.float64) for b in UNICYCLE_BOUNDS)
     prob = problems.unicycle(T=T, dtype=jnp.float64)
-    ref: dict[bool, float] = {}
+    ref: dict[bool, float] = {}  # per boxed: the first row's cost (Crocoddyl SolverDDP if it ran)
 
-    def croc_row(solver: str, boxed: bool, python_model: bool = False) -> Row:
-        pb = co.unicycle_problem(T, UNICYCLE_X0, state_weight=10.0, control_weight=1.0, dt=0.1,
-                                 bounds=(lo, hi) if boxed else None, python_model=python_model)
-        what = ("Python action model (same dynamics and cost)" if python_model else "C++ ActionModelUnicycle") + (
-            ", bounds" if boxed else "")
-        return _croc_single(run, f"{_CROC} {solver}" + (" (Python model)" if python_model else ""), pb, solver,
-                            UNICYCLE_MAX_STEPS, lambda c, us: _rel(c, ref.setdefault(boxed, c)), what)
+    def rel(cost, boxed: bool) -> float:
+        return _rel(float(cost), ref.setdefault(boxed, float(cost)))
 
     for solver, boxed, py in (("SolverDDP", False, False), ("SolverFDDP", False, False), ("SolverBoxDDP", True, False),
                               ("SolverDDP", False, True)):
-        run.add(f"{_CROC} {solver}" + (" (Python model)" if py else ""), "float64", 1,
-                lambda: croc_row(solver, boxed, py), peer=True)
+        impl = f"{_CROC} {solver}" + (" (Python model)" if py else "")
+        what = ("Python action model (same dynamics and cost)" if py else "C++ ActionModelUnicycle") + (
+            ", bounds" if boxed else "")
+        run.add(impl, "float64", 1, lambda: _croc_single(run, impl, co.python_problem(
+            "unicycle", prob.args, UNICYCLE_X0, T) if py else co.unicycle_problem(
+            T, UNICYCLE_X0, state_weight=10.0, control_weight=1.0, dt=0.1, bounds=(lo, hi) if boxed else None),
+            solver, UNICYCLE_MAX_STEPS, lambda c, us: rel(c, boxed), what), peer=True)
     for boxed in (False, True):
         for method in ("ilqr", "ddp"):
-            def solve(x0, us, args, fn=getattr(solvers, method), boxed=boxed):
-                return fn(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost, args=args,
-                          bounds=(jnp.asarray(lo), jnp.asarray(hi)) if boxed else None, max_steps=UNICYCLE_MAX_STEPS)
-
-            def accuracy(out, boxed=boxed):
-                ref.setdefault(boxed, float(out.cost))  # no Crocoddyl: the first jaxanim row is the reference
-                return _rel(float(out.cost), ref[boxed])
-
             impl = f"jaxanim {method}" + (" box" if boxed else "")
-            run.add(impl, "float64", 1, lambda: _jax_solve(run, impl, solve, (prob.x0, prob.us_init, prob.args), 1,
-                                                           accuracy, f"solvers.{method}"
-                                                           + (", bounds" if boxed else "") + ", while_loop"))
+            solve = _solve(prob, method, bounds=(jnp.asarray(lo), jnp.asarray(hi)) if boxed else None,
+                           max_steps=UNICYCLE_MAX_STEPS)
+            run.add(impl, "float64", 1, lambda: _jax_solve(
+                run, impl, solve, (prob.x0, prob.us_init, prob.args), 1, lambda out: rel(out.cost, boxed),
+                f"solvers.{method}" + (", bounds" if boxed else "") + ", while_loop"))
     rows = {r.implementation: r for r in table.rows if r.measured}
     c, py = rows.get(f"{_CROC} SolverDDP"), rows.get(f"{_CROC} SolverDDP (Python model)")
     if c and py:
@@ -222,15 +199,17 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
 def _lqr_table(config, sz: OCSizes) -> Table:
     n, m, T = sz.lqr_n, sz.lqr_m, sz.lqr_T
     d = make_lq(n, m, T)
-    lq = _lq_problem(d)
+    tile = lambda z: jnp.asarray(np.broadcast_to(z, (T,) + z.shape), jnp.float64)  # noqa: E731
+    lq = LQProblem(A=tile(d["A"]), B=tile(d["B"]), Q=tile(d["Q"]), R=tile(d["R"]), QT=jnp.asarray(d["Q"]),
+                   x0=jnp.asarray(d["x0"]), S=tile(d["N"].T), q=tile(d["q"]), r=tile(d["r"]), qT=jnp.asarray(d["q"]),
+                   c=tile(d["f"]), constant=jnp.zeros((), jnp.float64))
     table = Table(
         "oc-lqr", f"Optimal control: LQ problem, {n} states × {m} inputs, T = {T}",
         accuracy_label="rel. cost diff / max |Δu| vs solvers.lqr", description=(
-            "A seeded time-invariant LQ problem (`benchmarks.oc.make_lq`: A with spectral radius 1.02, cost "
-            "0.5 x'Qx + 0.5 u'Ru + x'N u + q'x + r'u with [[Q, N], [N', R]] positive definite, drift f, terminal "
-            "0.5 x'Qx + q'x), the same matrices in Crocoddyl's `ActionModelLQR`. `solvers.lqr` is the exact Riccati "
-            "solution; iLQR / DDP take one iteration and confirm convergence with a second; Crocoddyl's solvers "
-            "stop after one. float64, one problem per call."))
+            "A seeded time-invariant LQ problem (`benchmarks.oc.make_lq`: A with spectral radius 1.02, cost 0.5 x'Qx "
+            "+ 0.5 u'Ru + x'N u + q'x + r'u with [[Q, N], [N', R]] positive definite, drift f, terminal 0.5 x'Qx + "
+            "q'x), the same matrices in Crocoddyl's `ActionModelLQR`. `solvers.lqr` is the exact Riccati solution; "
+            "iLQR / DDP take one iteration and confirm convergence with a second; Crocoddyl's solvers stop after one."))
     run = Runner(config, table)
     sol = lq.solve()
     ref_cost, ref_us = float(sol.cost), np.asarray(sol.us)
@@ -247,17 +226,16 @@ def _lqr_table(config, sz: OCSizes) -> Table:
             lambda out: acc(out.cost, out.us),
             f"solvers.{method} on the problem as callbacks (LQProblem.as_control_problem)"))
 
-    def croc_row(solver: str) -> Row:
-        pb = co.lqr_problem(*(d[k] for k in ("A", "B", "Q", "R", "N", "f", "q", "r", "x0")), T)
-        return _croc_single(run, f"{_CROC} {solver}", pb, solver, 10, acc, "ActionModelLQR (C++)")
-
     for solver in ("SolverDDP", "SolverFDDP", "SolverBoxDDP"):
-        run.add(f"{_CROC} {solver}", "float64", 1, lambda: croc_row(solver), peer=True)
+        run.add(f"{_CROC} {solver}", "float64", 1, lambda: _croc_single(run, f"{_CROC} {solver}", co.lqr_problem(
+            *(d[k] for k in ("A", "B", "Q", "R", "N", "f", "q", "r", "x0")), T), solver, 10, acc,
+            "ActionModelLQR (C++)"), peer=True)
     c = next((r for r in table.rows if r.implementation == f"{_CROC} SolverDDP" and r.measured), None)
     if c is not None:
         same = _rel(c.extra["cost"], ref_cost) <= 1e-9
         table.notes.append(f"Cost conventions: Crocoddyl SolverDDP's final cost {c.extra['cost']:.15g} vs solvers.lqr "
-                           f"{ref_cost:.15g}: " + ("the same problem." if same else "MISMATCH (> 1e-9): the problems differ."))
+                           f"{ref_cost:.15g}: " + ("the same problem." if same else
+                                                   "MISMATCH (> 1e-9): the problems differ."))
     return table
 
 
@@ -271,11 +249,11 @@ def _dare_table(config, sz: OCSizes) -> Table:
         "oc-dare", f"Discrete algebraic Riccati equation, {n} × {m}, batched",
         accuracy_label="max rel ΔP vs scipy / max rel Riccati residual", description=(
             f"{big} seeded random systems (`benchmarks.oc.make_dare_systems`: A Gaussian with spectral radius 1.1, B "
-            "Gaussian, Q = GG' + 1e-3 I, R = HH' + I), float64. jaxanim: `jax.jit(jax.vmap(solvers.dare))` "
+            "Gaussian, Q = GG' + 1e-3 I, R = HH' + I). jaxanim: `jax.jit(jax.vmap(solvers.dare))` "
             "(structure-preserving doubling, adaptive while_loop) on the first `batch` systems; scipy: "
-            f"`scipy.linalg.solve_discrete_are` in a Python loop over the first {cap} systems (µs / char = per "
-            "system). ΔP: max over systems of max|P − P_scipy| / max|P_scipy| on the systems both solved; residual: "
-            "max over the batch of max|F(P)| / max|P| (numpy float64)."),
+            f"`scipy.linalg.solve_discrete_are` in a Python loop over the first {cap} (µs / char = per system). ΔP: "
+            "max over the systems both solved of max|P − P_scipy| / max|P_scipy|; residual: max over the batch of "
+            "max|F(P)| / max|P| (numpy float64)."),
         targets=[Target(f"batched DARE ≥ 20x the scipy loop at batch {big}", sel("jaxanim dare", batch=big), 20.0,
                         versus=sel(_SCIPY))])
     run = Runner(config, table)
@@ -292,27 +270,21 @@ def _dare_table(config, sz: OCSizes) -> Table:
 
     run.add(_SCIPY, "float64", big, scipy_row, peer=True)
 
-    def accuracy(out, b: int) -> str:
-        P = np.asarray(out.P)
+    def dare_row(b: int) -> Row:
+        out, tm, comp = run.jax(jax.vmap(lambda A, B, Q, R: solvers.dare(A, B, Q, R)),
+                                *(jnp.asarray(z[:b]) for z in (A, B, Q, R)))
+        P, steps, dP = np.asarray(out.P), np.asarray(out.stats["num_steps"]), "n/a"
+        if "P" in ref:  # the scipy row ran: compare on the systems both solved
+            k = min(b, len(ref["P"]))
+            dP = f"{(np.abs(P[:k] - ref['P'][:k]).max(axis=(1, 2)) / np.abs(ref['P'][:k]).max(axis=(1, 2))).max():.1e}"
         res = riccati_residual(A[:b], B[:b], Q[:b], R[:b], P).max()
-        if "P" not in ref:
-            return f"n/a / {res:.1e}"
-        k = min(b, ref["P"].shape[0])
-        dP = np.abs(P[:k] - ref["P"][:k]).max(axis=(1, 2)) / np.abs(ref["P"][:k]).max(axis=(1, 2))
-        return f"{dP.max():.1e} / {res:.1e}"
+        return run.row("jaxanim dare", "float64", b, tm, compile_s=comp, accuracy=f"{dP} / {res:.1e}",
+                       success=float(_ok(out.result).mean()), status=status_counts(out.result),
+                       note=f"doubling steps {steps.mean():.1f} / {steps.max()} (mean / max)")
 
     for b in batches:
-        args = tuple(jnp.asarray(z[:b]) for z in (A, B, Q, R))
-        run.add("jaxanim dare", "float64", b, lambda: _dare_row(run, solvers.dare, args, b, accuracy))
+        run.add("jaxanim dare", "float64", b, lambda: dare_row(b))
     return table
-
-
-def _dare_row(run: Runner, dare: Callable, args: tuple, b: int, accuracy: Callable) -> Row:
-    out, tm, comp = run.jax(jax.jit(jax.vmap(lambda A, B, Q, R: dare(A, B, Q, R))), *args)
-    steps = np.asarray(out.stats["num_steps"])
-    return run.row("jaxanim dare", "float64", b, tm, compile_s=comp, accuracy=accuracy(out, b),
-                   success=float(_ok(out.result).mean()), status=status_counts(out.result),
-                   note=f"doubling steps {steps.mean():.1f} / {steps.max()} (mean / max)")
 
 
 def _agreement(cost, ok, ref: Row | None) -> str:
@@ -333,21 +305,19 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
     batches = config.batches_for(sz.swing_batches)
     big = max(batches)
     x0s = initial_states(name, big)
-    start = _STARTS[name]
     croc = sel(f"{_CROC} SolverDDP", exact=True)
     table = Table(
         f"oc-{name}", f"Optimal control: batched {name.replace('_', '-')} swing-ups, T = {T}",
         accuracy_label=f"final costs agreeing with Crocoddyl DDP (≤ {AGREE_RTOL:g} rel.)", description=(
             f"`solvers.problems.{name}()` (explicit Euler, dt = {float(prob.args['dt']):g}, quadratic cost to upright) "
-            f"from {big} seeded starts ({start}), zero controls, ≤ {max_steps} iterations, default tolerances. "
+            f"from {big} seeded starts ({_STARTS[name]}), zero controls, ≤ {max_steps} iterations, default tolerances. "
             "jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` starts, adaptive and `fixed_steps=True` (a "
-            f"scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of `solve` on Python action "
-            "models with the same dynamics, cost and analytic first derivatives of the dynamics (like with like: "
-            "jaxanim ilqr; jaxanim ddp also uses second ones), on the first starts within the row budget (its "
-            f"success counts those only). **Success**: status successful and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. "
-            "Accuracy: of the problems both this row and Crocoddyl SolverDDP solved, how many final costs agree to "
-            f"{AGREE_RTOL:g} relative (median relative difference; local optima may differ). jaxanim notes: "
-            "iterations mean / max, mean cost, success on the starts Crocoddyl SolverDDP ran."),
+            f"scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of `solve` over the first "
+            "starts within the row budget (its success counts those only) on Python action models with the same "
+            "dynamics, cost and analytic first derivatives of the dynamics (like jaxanim ilqr; jaxanim ddp also uses "
+            f"second ones). **Success**: status successful and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. Accuracy: how many "
+            f"final costs of the problems both this row and Crocoddyl SolverDDP solved agree to {AGREE_RTOL:g} "
+            "relative (median relative difference; local optima may differ)."),
         targets=[Target(f"batched DDP on {big} swing-ups ≥ 20x the Crocoddyl SolverDDP loop's throughput (jaxanim "
                         "ddp: second-order dynamics; Crocoddyl: first-order)", sel("jaxanim ddp", batch=big), 20.0,
                         versus=croc),
@@ -356,23 +326,18 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
     run = Runner(config, table)
 
     def croc_row(solver: str) -> Row:
-        pb = co.swing_up_problem(name, prob.args, x0s[0], T)
-        s = co.make_solver(pb, solver)
+        pb = co.python_problem(name, prob.args, x0s[0], T)
+        s = getattr(co.load_crocoddyl(), solver)(pb)
         us0 = [np.zeros(prob.us_init.shape[1])] * T
-        limit = min(big, config.loop_cap)
-        out: dict[str, list] = {k: [] for k in ("cost", "conv", "its", "angle", "secs")}
-        t0 = time.perf_counter()
-        for i in range(limit):
-            t1 = time.perf_counter()
-            pb.x0 = x0s[i]
+        limit, solved, t0 = min(big, config.loop_cap), [], time.perf_counter()
+        for x0 in x0s[:limit]:  # (cost, converged, iterations, final angle, seconds) per start
+            t1, pb.x0 = time.perf_counter(), x0
             ok = s.solve(pb.rollout(us0), us0, max_steps, True, 1e-9)
-            for k, v in zip(out, (float(s.cost), bool(ok), int(s.iter), float(s.xs[-1][ai]),
-                                  time.perf_counter() - t1)):
-                out[k].append(v)
-            if time.perf_counter() - t0 > config.max_row_s and i >= 1:
+            solved.append((float(s.cost), bool(ok), int(s.iter), float(s.xs[-1][ai]), time.perf_counter() - t1))
+            if time.perf_counter() - t0 > config.max_row_s and len(solved) >= 2:
                 break
         total = time.perf_counter() - t0
-        cost, conv, its, angle, secs = (np.asarray(out[k]) for k in out)
+        cost, conv, its, angle, secs = (np.asarray(c) for c in zip(*solved))
         k = len(cost)
         success = conv & (np.abs(angle - np.pi) < UPRIGHT_TOLERANCE)
         p10, p50, pmax = np.percentile(secs / np.maximum(its, 1), [10, 50, 100])
@@ -392,39 +357,27 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
     def upright(out) -> np.ndarray:
         return _ok(out.result) & (np.abs(np.asarray(out.xs)[:, -1, ai] - np.pi) < UPRIGHT_TOLERANCE)
 
-    def accuracy(out) -> str:
-        return _agreement(np.asarray(out.cost), _ok(out.result), ref)
-
     for b in batches:
         args = (jnp.asarray(x0s[:b]), jnp.broadcast_to(prob.us_init, (b,) + prob.us_init.shape), prob.args)
         for method in sz.swing_methods:
             for fixed in (False, True) if sz.swing_fixed else (False,):
-                def one(x0, us, args, fn=getattr(solvers, method), fixed=fixed):
-                    return fn(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost, args=args,
-                              max_steps=max_steps, fixed_steps=fixed)
-
                 impl = f"jaxanim {method}" + (f" (fixed {max_steps})" if fixed else "")
                 note = f"solvers.{method}, " + (f"fixed_steps (scan of {max_steps})" if fixed else "while_loop")
-                run.add(impl, "float64", b, lambda: _swing_row(
-                    run, _jax_solve(run, impl, jax.vmap(one, in_axes=(0, 0, None)), args, b, accuracy, note, upright),
-                    ref))
+                one = jax.vmap(_solve(prob, method, max_steps=max_steps, fixed_steps=fixed), in_axes=(0, 0, None))
+                run.add(impl, "float64", b, lambda: _jax_solve(run, impl, one, args, b, lambda out: _agreement(
+                    np.asarray(out.cost), _ok(out.result), ref), note, upright))
+    for r in table.rows if ref is not None else ():  # success on the starts Crocoddyl SolverDDP ran (like with like)
+        if "ok" in r.extra:
+            k = min(r.batch, ref.chars_per_call)
+            r.note += f"; success on Crocoddyl's first {k} starts {100 * r.extra['ok'][:k].mean():.1f} %"
     return table
-
-
-def _swing_row(run: Runner, row: Row, ref: Row | None) -> Row:
-    """Add the success rate on the starts Crocoddyl SolverDDP ran (like with like)."""
-    if ref is not None:
-        k = min(row.batch, ref.chars_per_call)
-        row.note += f"; success on Crocoddyl's first {k} starts {100 * row.extra['ok'][:k].mean():.1f} %"
-    return row
 
 
 def _compile_table(tables: Sequence[Table]) -> Table:
     table = Table("oc-compile", "Optimal control: compile times (jaxanim)", accuracy_label="—", description=(
-        "`jax.jit(f).lower(*args).compile()` of every jitted jaxanim row of the tables above, on a fresh `jax.jit` "
-        "object (tracing + lowering + XLA compilation: what the first call costs on top of running); the run times "
-        "above never include it."), targets=[Target("iLQR / DDP compile ≤ 5 s", sel(("jaxanim ilqr", "jaxanim ddp")),
-                                                    5.0, "compile", worst=True)])
+        "`jax.jit(f).lower(*args).compile()` of every jitted jaxanim row above on a fresh `jax.jit` object (tracing, "
+        "lowering and XLA compilation: what the first call costs on top of running), never in the run times above."),
+        targets=[Target("iLQR / DDP compile ≤ 5 s", sel(("jaxanim ilqr", "jaxanim ddp")), 5.0, "compile", worst=True)])
     for t in tables:
         table.rows += [Row(f"{r.implementation} [{t.name.removeprefix('oc-')}]", r.dtype, r.batch,
                            compile_s=r.compile_s) for r in t.rows if r.measured and r.compile_s is not None]

@@ -21,8 +21,8 @@ from .peers import mujoco_physics as mp
 from .report import Row, Table, Target, sel, usable_cores
 from .timing import Runner, Timing, status_counts
 
-__all__ = ["BATCHES", "CLIP", "DT", "KD", "KP", "PhysicsSizes", "STAND_FRAME", "StandingCharacter", "double_pendulum",
-           "root_velocities", "run_physics", "standing_character"]
+__all__ = ["CLIP", "DT", "PhysicsSizes", "StandingCharacter", "double_pendulum", "root_velocities", "run_physics",
+           "standing_character"]
 
 CLIP = "bvh/cmu_01_01_trim300.bvh"
 STAND_FRAME = 200  # both feet flat, center of mass over them
@@ -39,53 +39,38 @@ _MJX = "MJX jit(vmap(scan(mjx.step)))"
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsSizes:
-    """Sizes; the defaults are the issue's (``--quick`` and tests shrink them). ``contact_models``:
-    ``"complementarity"``, ``"penalty"``, or ``"complementarity:8"`` (the 8 lowest points only);
-    ``stand_seconds`` / ``pendulum_seconds`` of 0 skip those tables; ``mjx_batches=None``: all batches."""
+    """Sizes (``--quick`` and tests shrink them); ``contact_models``: ``"complementarity"``, ``"penalty"``, or
+    ``"complementarity:8"`` (its 8 lowest points); 0 seconds skip a table; ``mjx_batches=None``: all batches."""
 
     batches: tuple[int, ...] = BATCHES
     steps_per_call: int = 20
     mjx_steps: int = 10
     mjx_batches: tuple[int, ...] | None = None
     contact_models: tuple[str, ...] = ("complementarity", "complementarity:8", "penalty")
-    penalty_dt: float = DT
     stand_seconds: float = 1.0
     pendulum_seconds: float = 1.0
     pendulum_dts: tuple[float, ...] = (1 / 600, 1 / 1200)
 
-    @classmethod
-    def quick(cls, batches: tuple[int, ...]) -> PhysicsSizes:
-        return cls(steps_per_call=5, mjx_steps=2, mjx_batches=(max(batches),), stand_seconds=0.1, pendulum_seconds=0.2)
+
+def clearance(state, body, local, radius) -> jax.Array:
+    """The least signed distance (m; negative: penetrating) to the ground of contact points ``body, local, radius``."""
+    return jnp.min(state.position[body, 1] + rot.quat_apply(state.orientation[body], local)[:, 1] - radius)
 
 
 @dataclasses.dataclass(frozen=True)
 class StandingCharacter:
-    """The character, its start state, its SPD targets ``[J, 4]``, the free body's index and the
-    contact points (body, local offset, radius) of one contact model."""
+    """The character, its start state, its SPD targets ``[J, 4]``, the free body's index, the ``contact`` points
+    ``(body, local offset, radius)`` of one contact model and the controller args ``gains`` (``KP``, ``KD``)."""
 
     char: Any
     state: Any
     targets: Any
     root: int
-    contact_body: np.ndarray
-    contact_local: Any
-    contact_radius: Any
-
-    @property
-    def num_joints(self) -> int:
-        return self.char.model.joints.num_joints
-
-    def gains(self, kp: float = KP, kd: float = KD) -> dict:  # controller args
-        return dict(kp=jnp.full((self.num_joints,), kp), kd=jnp.full((self.num_joints,), kd))
+    contact: tuple
+    gains: dict
 
     def controller(self, state, step, args):
         return dict(spd=(self.targets, args["kp"], args["kd"]))
-
-    def clearance(self, state) -> jax.Array:
-        """The smallest signed distance of a contact point to the ground (m; negative: penetrating)."""
-        b = self.contact_body
-        return jnp.min(state.position[b, 1] + rot.quat_apply(state.orientation[b], self.contact_local)[:, 1]
-                       - self.contact_radius)
 
     def mjcf(self, dt: float) -> str:
         return character.export_mjcf(self.char, self.state, dt=dt, stiffness=KP, damping=KD)
@@ -113,16 +98,16 @@ def standing_character(data_dir: pathlib.Path | str, contact_model: str = "compl
     q0, t0 = motion.rotations[STAND_FRAME], motion.translations[STAND_FRAME]
     char, state = character.build_character(skel, q0, t0, ground=ground)
     own, loc, rad = physics.contact_points(char.model.bodies)
-    own = np.asarray(own)
-    lowest = float(jnp.min(state.position[own, 1] + rot.quat_apply(state.orientation[own], loc)[:, 1] - rad))
-    t0 = jnp.asarray(t0).at[skel.parents.index(-1), 1].add(-lowest / char.unit)
+    contact = (np.asarray(own), loc, rad)
+    t0 = jnp.asarray(t0).at[skel.parents.index(-1), 1].add(-float(clearance(state, *contact)) / char.unit)
     char, state = character.build_character(skel, q0, t0, ground=ground)
-    return StandingCharacter(char, state, character.spd_targets(char, q0, t0), character.root_body(char), own, loc, rad)
+    n = char.model.joints.num_joints
+    return StandingCharacter(char, state, character.spd_targets(char, q0, t0), character.root_body(char), contact,
+                             dict(kp=jnp.full((n,), KP), kd=jnp.full((n,), KD)))
 
 
 def double_pendulum():
-    """``(model, state)``: two capsules (radius 0.05 m, 0.4 m between cap centers) hanging from the
-    origin by ball joints, released with the lower link out of the upper one's plane."""
+    """``(model, state)`` of the pendulum table's two capsules (see its description)."""
     r, length = 0.05, 0.4
     half = length / 2 + r
     bodies = physics.make_bodies([("capsule", (r, length)), ("capsule", (r, length))], names=("upper", "lower"),
@@ -138,31 +123,6 @@ def double_pendulum():
     return physics.make_model(bodies, joints), state
 
 
-class _Sims:
-    """MuJoCo models of the character per dt (grown to the largest batch asked) and reference positions."""
-
-    def __init__(self, data_dir):
-        self.data_dir, self.sims, self.refs = data_dir, {}, {}
-
-    def sim(self, dt: float, batch: int):
-        if dt not in self.sims or self.sims[dt].batch < batch:
-            ch = standing_character(self.data_dir, "complementarity")
-            self.sims[dt] = mp.MujocoSim(ch.mjcf(dt), ch.char.model.bodies.names, ch.root, root_velocities(batch))
-        return self.sims[dt]
-
-    def diff(self, pos, dt: float, nstep: int) -> float | str:
-        """Max |Δx| of character 0's body positions against ``nstep`` MuJoCo C steps at ``dt``."""
-        if (dt, nstep) not in self.refs:
-            try:
-                sim = self.sim(dt, 1)
-                sim.step_loop(nstep, count=1)
-                self.refs[(dt, nstep)] = sim.positions(0)
-            except PeerUnavailable:
-                self.refs[(dt, nstep)] = None
-        ref = self.refs[(dt, nstep)]
-        return "n/a (no MuJoCo)" if ref is None else float(np.max(np.abs(np.asarray(pos) - ref)))
-
-
 def _throughput_table(config, sz: PhysicsSizes) -> Table:
     batches = config.batches_for(sz.batches)
     mjx_batches = batches if sz.mjx_batches is None else tuple(sz.mjx_batches)
@@ -172,61 +132,65 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
         "physics", f"Physics: a {ch0.char.num_bodies}-body character standing under PD control (character-steps per "
         "second)", accuracy_label="max |Δx| vs MuJoCo C, char 0 (m)", description=(
             f"The CMU skeleton (`{CLIP}`, frame {STAND_FRAME}: both feet flat) as {ch0.char.num_bodies} bodies with "
-            f"{ch0.num_joints} ball joints (70 kg), every joint held at its pose by stable PD (kp {KP:g} N m/rad, kd "
-            f"{KD:g} N m s/rad); MuJoCo runs `character.export_mjcf` of it (joint springs of the same stiffness and "
-            "damping, Euler, condim 3 plane contact, μ 0.8). Character b starts with a seeded root velocity "
-            f"(±{ROOT_SPEED} m/s along x, z). **µs / char is per character-step**: a call is {n} steps of `batch` "
-            f"characters (MJX: {sz.mjx_steps} steps); dt = 1/{round(1 / DT)} s unless the row says otherwise. jaxanim: "
-            "`jax.jit(jax.vmap(physics.rollout))` over the characters' states. MuJoCo C: a Python loop of `mj_step` "
-            "per character (each `MjData` reset to its start state every call), and `mujoco.rollout.rollout` with "
-            f"{nthread} threads (one `MjData` per usable core; the other rows share the same cores). MJX: "
-            "`jax.jit(jax.vmap(scan of mjx.step))` on the CPU. Accuracy: max body-position difference of character "
-            "0 after the call's steps against MuJoCo C at the same dt (different contact and PD models: a "
+            f"{ch0.char.model.joints.num_joints} ball joints (70 kg), each held at its pose by stable PD (kp {KP:g} N "
+            f"m/rad, kd {KD:g} N m s/rad); MuJoCo runs its `character.export_mjcf` (joint springs of the same "
+            "stiffness and damping, Euler, condim 3 plane contact, μ 0.8). Character b starts with a seeded root "
+            f"velocity (±{ROOT_SPEED} m/s along x, z). **µs / char is per character-step**: a call is {n} steps of "
+            f"`batch` characters (MJX: {sz.mjx_steps}), dt = 1/{round(1 / DT)} s. jaxanim: "
+            "`jax.jit(jax.vmap(physics.rollout))`; MuJoCo C: a Python loop of `mj_step` per character (each `MjData` "
+            f"reset to its start state every call), and `mujoco.rollout.rollout` on {nthread} threads (one `MjData` "
+            "per usable core, shared with the other rows); MJX: `jax.jit(jax.vmap(scan of mjx.step))` on the CPU. "
+            "Accuracy: character 0's body positions after the call vs MuJoCo C's (different contact and PD models: a "
             "difference, not an error)."),
         targets=[Target("≤ 35 µs per character-step at batch 1024", sel("jaxanim", batch=1024), 35.0),
                  Target("one character's step within 5x MuJoCo C mj_step (speedup ≥ 0.2x)", sel("jaxanim", batch=1),
                         0.2, versus=sel(_MJ_LOOP, batch=1)),
                  Target("rollout compile ≤ 5 s (jaxanim rows)", sel("jaxanim"), 5.0, "compile", worst=True)])
-    run, sims = Runner(config, table), _Sims(config.data_dir)
-    try:
-        sims.sim(DT, max(batches))  # every batch's start states at once
-    except PeerUnavailable:
-        pass
+    run = Runner(config, table)
+
+    @functools.cache
+    def mujoco() -> mp.MujocoSim:  # every batch's start states at once (PeerUnavailable without MuJoCo)
+        return mp.MujocoSim(ch0.mjcf(DT), ch0.char.model.bodies.names, ch0.root, root_velocities(max(batches)))
+
+    @functools.cache
+    def mj_reference(nstep: int) -> np.ndarray:  # character 0's body positions after nstep MuJoCo C steps
+        mujoco().step_loop(nstep, count=1)
+        return mujoco().positions(0)
+
+    def diff(pos, nstep: int) -> float | str:
+        try:
+            return float(np.max(np.abs(np.asarray(pos) - mj_reference(nstep))))
+        except PeerUnavailable:
+            return "n/a (no MuJoCo)"
 
     def mj_loop_row(b: int) -> Row:
-        sim, count = sims.sim(DT, b), min(b, config.loop_cap)
-        _, tm = run.python(sim.step_loop, n, count)
+        count = min(b, config.loop_cap)
+        _, tm = run.python(mujoco().step_loop, n, count)
         return run.row(_MJ_LOOP, "float64", b, tm, count * n, accuracy="reference",
                        note=f"Python loop over {count} of {b} characters" if count < b else "Python loop")
 
     def mj_rollout_row(b: int) -> Row:
-        sim = sims.sim(DT, b)
+        sim = mujoco()
         out, tm = run.python(sim.rollout, n, [sim.mujoco.MjData(sim.model) for _ in range(nthread)], b)
-        return run.row(_MJ_ROLLOUT, "float64", b, tm, b * n, accuracy=sims.diff(sim.positions(state=out[0, -1]),
-                                                                                 DT, n),
+        return run.row(_MJ_ROLLOUT, "float64", b, tm, b * n, accuracy=diff(sim.positions(state=out[0, -1]), n),
                        note=f"nthread = {nthread}, persistent C++ thread pool")
 
     def mjx_row(b: int) -> Row:
-        sim = sims.sim(DT, b)
-        fn, args = mp.mjx_rollout(sim, sz.mjx_steps, b)
-        qpos, tm, comp = run.jax(fn, *args)
-        return run.row(_MJX, "float64", b, tm, b * sz.mjx_steps, comp, sims.diff(
-            sim.positions(qpos=np.asarray(qpos[0])), DT, sz.mjx_steps),
-            note=f"{sz.mjx_steps} steps per call, CPU")
+        qpos, tm, comp = run.jax(*mp.mjx_rollout(mujoco(), sz.mjx_steps, b))
+        return run.row(_MJX, "float64", b, tm, b * sz.mjx_steps, comp, diff(
+            mujoco().positions(qpos=np.asarray(qpos[0])), sz.mjx_steps), note=f"{sz.mjx_steps} steps per call, CPU")
 
     def jax_row(model: str, b: int, impl: str) -> Row:
         ch = standing_character(config.data_dir, model)
-        dt = sz.penalty_dt if model == "penalty" else DT
 
         def one(s, args):
-            r = physics.rollout(ch.char.model, s, dt, n, record_every=n, controller=ch.controller, controller_args=args)
+            r = physics.rollout(ch.char.model, s, DT, n, record_every=n, controller=ch.controller, controller_args=args)
             return r.final.position, r.result, r.num_steps
 
-        (pos, result, steps), tm, comp = run.jax(jax.vmap(one, in_axes=(0, None)), ch.batch_states(b), ch.gains())
+        (pos, result, steps), tm, comp = run.jax(jax.vmap(one, in_axes=(0, None)), ch.batch_states(b), ch.gains)
         ok = np.asarray(result == physics.SimResult.successful) & (np.asarray(steps) == n)
-        return run.row(impl, "float64", b, tm, b * n, comp, sims.diff(np.asarray(pos[0]), dt, n),
-                       success=float(ok.mean()), status=status_counts(result, physics.SimResult),
-                       note=f"{model} contact" + (f", dt = 1/{round(1 / dt)} s" if dt != DT else ""))
+        return run.row(impl, "float64", b, tm, b * n, comp, diff(np.asarray(pos[0]), n), success=float(ok.mean()),
+                       status=status_counts(result, physics.SimResult), note=f"{model} contact")
 
     for b in batches:
         run.add(_MJ_LOOP, "float64", b, lambda: mj_loop_row(b), peer=True)
@@ -254,24 +218,18 @@ def _standing_table(config, sz: PhysicsSizes) -> Table:
         "physics-standing", f"Physics: standing character, {secs:g} s, accuracy",
         accuracy_label="max |root y − MuJoCo's| (m)", description=(
             f"One character (the table above's character 0, no initial velocity) for {secs:g} s of simulated time, one "
-            "unbatched run of the whole duration per call (µs / char is per step; the table above measures "
-            "throughput). Root height `y` of the free body's center of mass: start → end and min / max change "
-            "(sampled every 10 ms); penetration: the deepest contact point under the plane (jaxanim: signed distance "
-            "of its contact points, every 10 ms; MuJoCo: `contact.dist`, every step; MuJoCo's contacts are soft); "
-            "joint separation: jaxanim's max constraint drift (`physics.joint_error`; MuJoCo's reduced coordinates "
-            "have none). Accuracy: max |root y − MuJoCo C's at the same dt| over the samples."))
+            "unbatched run per call (µs / char is per step). Root height `y` of the free body's center of mass: start "
+            "→ end and min / max change (sampled every 10 ms); penetration: the deepest contact point under the plane "
+            "(jaxanim: signed distance of its contact points, every 10 ms; MuJoCo: `contact.dist`, every step; its "
+            "contacts are soft); joint separation: jaxanim's max constraint drift (`physics.joint_error`; MuJoCo's "
+            "reduced coordinates have none). Accuracy: max |root y − MuJoCo C's| over the samples."))
     run = Runner(config, table)
     ch0 = standing_character(config.data_dir, "complementarity")
-    y0 = float(ch0.state.position[ch0.root, 1])
-    mj: dict[float, np.ndarray] = {}
+    y0, k = float(ch0.state.position[ch0.root, 1]), max(1, round(0.01 / DT))  # samples every k steps (10 ms)
+    total, mj = int(round(secs / DT)) // k * k, {}
 
-    def steps(dt: float) -> tuple[int, int]:
-        k = max(1, round(0.01 / dt))
-        return int(round(secs / dt)) // k * k, k
-
-    def mj_row(dt: float, impl: str) -> Row:
-        sim = mp.MujocoSim(ch0.mjcf(dt), ch0.char.model.bodies.names, ch0.root, np.zeros((1, 3)))
-        total, k = steps(dt)
+    def mj_row(impl: str) -> Row:
+        sim = mp.MujocoSim(ch0.mjcf(DT), ch0.char.model.bodies.names, ch0.root, np.zeros((1, 3)))
         d, ys, pen = sim.reset(0), [], 0.0
         t0 = time.perf_counter()
         for i in range(total):
@@ -280,30 +238,28 @@ def _standing_table(config, sz: PhysicsSizes) -> Table:
             if (i + 1) % k == 0:
                 ys.append(sim.positions(0)[ch0.root, 1])
         wall = time.perf_counter() - t0
-        mj[dt] = np.asarray(ys)
+        mj["ys"] = np.asarray(ys)
         return run.row(impl, "float64", 1, Timing(wall, None, 1), total, accuracy="reference",
-                       note=f"dt 1/{round(1 / dt)}: " + _summary(mj[dt], y0, pen, 0.0, total, wall))
+                       note=f"dt 1/{round(1 / DT)}: " + _summary(mj["ys"], y0, pen, 0.0, total, wall))
 
-    def jax_row(model: str, dt: float, impl: str) -> Row:
+    def jax_row(model: str, impl: str) -> Row:
         ch = standing_character(config.data_dir, model)
-        total, k = steps(dt)
-        fn = lambda s, a: physics.rollout(ch.char.model, s, dt, total, record_every=k,  # noqa: E731
+        fn = lambda s, a: physics.rollout(ch.char.model, s, DT, total, record_every=k,  # noqa: E731
                                           controller=ch.controller, controller_args=a)
-        out, tm, comp = run.jax(fn, ch.state, ch.gains())
+        out, tm, comp = run.jax(fn, ch.state, ch.gains)
         ys = np.asarray(out.trajectory.position[:, ch.root, 1])
-        clear = float(np.min(jax.vmap(ch.clearance)(out.trajectory)))
+        clear = float(np.min(jax.vmap(lambda s: clearance(s, *ch.contact))(out.trajectory)))
         drift = float(np.max(jax.vmap(lambda s: physics.joint_error(ch.char.model, s))(out.trajectory)))
         ok = bool(out.result == physics.SimResult.successful) and int(out.num_steps) == total
-        acc = float(np.max(np.abs(ys - mj[dt]))) if dt in mj else "n/a (no MuJoCo)"
+        acc = float(np.max(np.abs(ys - mj["ys"]))) if mj else "n/a (no MuJoCo)"
         return run.row(impl, "float64", 1, tm, total, comp, acc, success=float(ok), note=(
-            f"{model} contact, dt 1/{round(1 / dt)}: " + _summary(ys, y0, clear, drift, total, tm.median)))
+            f"{model} contact, dt 1/{round(1 / DT)}: " + _summary(ys, y0, clear, drift, total, tm.median)))
 
-    for dt in sorted({DT} | ({sz.penalty_dt} if "penalty" in sz.contact_models else set()), reverse=True):
-        impl = f"MuJoCo C mj_step (dt 1/{round(1 / dt)})"
-        run.add(impl, "float64", 1, lambda: mj_row(dt, impl), peer=True)
+    impl = f"MuJoCo C mj_step (dt 1/{round(1 / DT)})"
+    run.add(impl, "float64", 1, lambda: mj_row(impl), peer=True)
     for model in sz.contact_models:
         impl = f"jaxanim rollout ({model})"
-        run.add(impl, "float64", 1, lambda: jax_row(model, sz.penalty_dt if model == "penalty" else DT, impl))
+        run.add(impl, "float64", 1, lambda: jax_row(model, impl))
     return table
 
 
@@ -314,36 +270,33 @@ def _pendulum_table(config, sz: PhysicsSizes) -> Table:
         accuracy_label=f"max body position error vs MuJoCo dt 1/{round(1 / PENDULUM_REF_DT)} (m)", description=(
             "Two capsules (radius 0.05 m, 0.4 m between cap centers, 1000 kg/m³) hanging from the origin by ball "
             "joints, released with the lower link out of the upper one's plane (3-D motion), no contact, exported "
-            "with `physics.to_mjcf`. jaxanim `physics.rollout` and MuJoCo C (`mj_step`, Euler, one unbatched run "
-            f"per call) at each dt, against MuJoCo at dt 1/{round(1 / PENDULUM_REF_DT)} (the reference); both "
-            "schemes are first order. Notes: the difference to MuJoCo at the same dt and jaxanim's max joint "
-            "separation over the run (constraint drift)."))
+            "with `physics.to_mjcf`. jaxanim `physics.rollout` and MuJoCo C (`mj_step`, Euler, one unbatched run per "
+            f"call) at each dt, against MuJoCo at dt 1/{round(1 / PENDULUM_REF_DT)} (the reference); both schemes are "
+            "first order. Notes: the difference to MuJoCo at the same dt, the max joint separation (drift)."))
     run = Runner(config, table)
     model, state = double_pendulum()
-    cache: dict[float, tuple[np.ndarray, float]] = {}
 
-    def mujoco_final(dt: float) -> np.ndarray:
-        if dt not in cache:
-            mujoco = mp.load_mujoco()
-            m = mujoco.MjModel.from_xml_string(physics.to_mjcf(model, state, dt=dt))
-            d = mujoco.MjData(m)
-            t0 = time.perf_counter()
-            for _ in range(int(round(secs / dt))):
-                mujoco.mj_step(m, d)
-            wall = time.perf_counter() - t0
-            mujoco.mj_kinematics(m, d)
-            cache[dt] = (d.xpos[[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in model.bodies.names]], wall)
-        return cache[dt][0]
+    @functools.cache
+    def mujoco_run(dt: float) -> tuple[np.ndarray, float]:  # final body positions, wall seconds
+        mujoco = mp.load_mujoco()
+        m = mujoco.MjModel.from_xml_string(physics.to_mjcf(model, state, dt=dt))
+        d = mujoco.MjData(m)
+        t0 = time.perf_counter()
+        for _ in range(int(round(secs / dt))):
+            mujoco.mj_step(m, d)
+        wall = time.perf_counter() - t0
+        mujoco.mj_kinematics(m, d)
+        return d.xpos[[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in model.bodies.names]], wall
 
     def error(pos, dt: float) -> float | str:
         try:
-            return float(np.max(np.abs(np.asarray(pos) - mujoco_final(dt))))
+            return float(np.max(np.abs(np.asarray(pos) - mujoco_run(dt)[0])))
         except PeerUnavailable:
             return "n/a (no MuJoCo)"
 
     def mj_row(dt: float, impl: str) -> Row:
-        pos, n = mujoco_final(dt), int(round(secs / dt))
-        return run.row(impl, "float64", 1, Timing(cache[dt][1], None, 1), n, accuracy=error(pos, PENDULUM_REF_DT),
+        (pos, wall), n = mujoco_run(dt), int(round(secs / dt))
+        return run.row(impl, "float64", 1, Timing(wall, None, 1), n, accuracy=error(pos, PENDULUM_REF_DT),
                        note=f"{n} steps, Python loop")
 
     def jax_row(dt: float, impl: str) -> Row:
@@ -373,7 +326,8 @@ def run_physics(config, sizes: PhysicsSizes | None = None, tables: tuple[str, ..
     unknown = set(tables) - set(TABLES)
     if unknown:
         raise ValueError(f"tables: unknown {sorted(unknown)}; expected some of {TABLES}")
-    sz = sizes or (PhysicsSizes.quick(config.batches_for(BATCHES)) if config.quick else PhysicsSizes())
+    sz = sizes or (PhysicsSizes(steps_per_call=5, mjx_steps=2, mjx_batches=(max(config.batches_for(BATCHES)),),
+                                stand_seconds=0.1, pendulum_seconds=0.2) if config.quick else PhysicsSizes())
     config.float64_only("physics", "MuJoCo is float64")
     out: list[Table] = []
     path = config.data_file(CLIP)

@@ -1,6 +1,5 @@
-"""Rows as data (:class:`Row`, :class:`Table`, :class:`Target`) and the one template, :func:`render_table`, the
-only place that writes prose: the table, the "× best peer" column and line, each target met / missed with the
-rows it was judged on, the benchmark's measured facts and how it was measured."""
+"""Rows as data (:class:`Row`, :class:`Table`, :class:`Target`) and the one template that writes them,
+:func:`render_table`: the table, the best peers, each target met / missed with its rows, the notes, the run."""
 
 from __future__ import annotations
 
@@ -19,11 +18,10 @@ _DASH = "—"
 
 @dataclasses.dataclass
 class Row:
-    """What one implementation of a problem measured at one dtype and batch size: seconds per timed call,
-    ``chars_per_call`` problems (or character-steps) per call (``batch`` unless a Python loop was capped),
-    ``compile_s`` (``lower + compile``), ``accuracy`` (a number or text), ``success`` (fraction solved),
-    ``status`` (counts of statuses other than success), ``samples`` (timed calls), why it was ``skipped``,
-    and ``extra`` measured values that later rows need (not rendered)."""
+    """What one implementation measured at one dtype and batch: seconds per timed call of ``chars_per_call``
+    problems or character-steps (``batch`` unless a Python loop was capped), ``compile_s`` (lower + compile),
+    ``accuracy`` (number or text), ``success`` (fraction solved), ``status`` (counts of the other statuses),
+    ``samples`` (timed calls), why it was ``skipped`` and ``extra`` values later rows need (not rendered)."""
 
     implementation: str
     dtype: str | None = None
@@ -109,13 +107,10 @@ def _acc(a: float | str | None) -> str:
     return _DASH if a is None else a if isinstance(a, str) else "0" if a == 0 else f"{a:.2e}"
 
 
-def _best_peers(rows: Sequence[Row]) -> dict[int, Row]:
-    best: dict[int, Row] = {}
-    for r in rows:
-        if r.measured and r.is_peer and r.us_per_char is not None and (
-                r.batch not in best or r.us_per_char < best[r.batch].us_per_char):
-            best[r.batch] = r
-    return best
+def _best_peers(rows: Sequence[Row]) -> dict[int, Row]:  # the fastest peer per batch (the first of a tie)
+    peers = sorted([r for r in rows if r.measured and r.is_peer and r.us_per_char is not None],
+                   key=lambda r: r.us_per_char)
+    return {r.batch: r for r in reversed(peers)}
 
 
 def _notes_cell(r: Row) -> str:
@@ -148,8 +143,8 @@ def judge(target: Target, rows: Sequence[Row]) -> str:
     cands = [r for r in rows if r.measured and target.select(r) and key(r) is not None]
     if not cands:
         return f"Target: {target.text}: not measured in this run."
-    pick_max = higher != target.worst
-    r = max(cands, key=key) if pick_max else min(cands, key=key)
+    cands.sort(key=key, reverse=higher != target.worst)  # the judged row first
+    r = cands[0]
     if target.versus is not None:
         peers = [p for p in rows if p.measured and target.versus(p) and key(p) is not None]
         if not peers:
@@ -159,10 +154,8 @@ def judge(target: Target, rows: Sequence[Row]) -> str:
         return (f"Target: {target.text}: {_who(r)} {_fmt_metric(key(r), target.metric)} vs {_who(p)} "
                 f"{_fmt_metric(key(p), target.metric)} = {x:.3g}x: {'met' if x >= target.limit else 'missed'}.")
     ok = key(r) >= target.limit if higher else key(r) <= target.limit
-    span = ""
-    if target.worst and len(cands) > 1:
-        other = min(cands, key=key) if pick_max else max(cands, key=key)
-        span = f" (range {_fmt_metric(key(other), target.metric)} to it over {len(cands)} rows)"
+    ranged = target.worst and len(cands) > 1
+    span = f" (range {_fmt_metric(key(cands[-1]), target.metric)} to it over {len(cands)} rows)" if ranged else ""
     return f"Target: {target.text}: {'worst' if target.worst else 'best'} {_who(r)} " \
            f"{_fmt_metric(key(r), target.metric)}{span}: {'met' if ok else 'missed'}."
 
@@ -185,9 +178,8 @@ def render_table(table: Table) -> str:
             cells = [r.implementation, r.dtype or _DASH, str(r.batch) if r.batch else _DASH, f"skipped: {r.skipped}"]
             cells += [_DASH] * (len(header) - 5) + [r.note]
         else:
-            ratio = _DASH
-            if r.batch in best and r.us_per_char is not None:
-                ratio = f"{r.us_per_char / best[r.batch].us_per_char:.3g}×"
+            ok = r.batch in best and r.us_per_char is not None
+            ratio = f"{r.us_per_char / best[r.batch].us_per_char:.3g}×" if ok else _DASH
             cells = [r.implementation, r.dtype or _DASH, str(r.batch),
                      f"{format_seconds(r.time_median_s)} ({format_seconds(r.time_min_s)})", _num(r.us_per_char),
                      format_seconds(r.compile_s), _acc(r.accuracy)]

@@ -1,10 +1,5 @@
-"""Timing, and the one harness (:class:`Runner`) that turns a measurement into a :class:`~benchmarks.report.Row`.
-
-Compile time is ``jax.jit(f).lower(*args).compile()`` on a fresh ``jax.jit`` object; run time is the
-median (min) over samples, after warm-up, of one call waited for with ``block_until_ready`` (calls
-shorter than ``min_sample_s`` are repeated inside a sample; calls over a second are sampled only
-within the row budget). The two are reported apart.
-"""
+"""Timing (compile time, and apart from it the median / min run time of calls waited for with ``block_until_ready``)
+and the one harness, :class:`Runner`, that turns a measurement into a :class:`~benchmarks.report.Row`."""
 
 from __future__ import annotations
 
@@ -24,7 +19,7 @@ import solvers
 from .peers import PeerUnavailable
 from .report import Row, Table
 
-__all__ = ["CompileStats", "Runner", "Timing", "TimingStats", "compile_time", "sample_call", "time_call"]
+__all__ = ["CompileStats", "Runner", "Timing", "compile_time", "sample_call", "status_counts", "time_call"]
 
 _LONG_CALL_S = 1.0
 _CALL_BUDGET_FACTOR = 4.0  # a row is skipped when one call is expected to take > this x max_row_s
@@ -39,10 +34,6 @@ class Timing:
     samples: int
     number: int = 1
     all: tuple[float, ...] = ()
-
-    repeats = property(lambda self: self.samples)
-
-TimingStats = Timing
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,9 +64,9 @@ def _call_blocking(fn: Callable[..., Any], args: tuple, number: int) -> float:
 
 def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 7, warmup: int = 2, min_sample_s: float = 2e-3,
               max_total_s: float | None = None, number: int | None = None) -> Timing:
-    """Median and min seconds of ``fn(*args)`` after ``warmup`` calls (one if it takes over a second);
-    calls faster than ``min_sample_s`` run ``number`` times per sample (calibrated unless given);
-    sampling stops past ``max_total_s`` once 3 samples (or ``repeats``) were taken."""
+    """Median and min seconds of ``fn(*args)`` after ``warmup`` calls (one if it takes over a second); calls faster
+    than ``min_sample_s`` run ``number`` times per sample (calibrated unless given); sampling stops past
+    ``max_total_s`` once 3 samples (or ``repeats``) were taken."""
     if repeats < 1:
         raise ValueError(f"repeats: expected >= 1, got {repeats}")
     once = math.inf
@@ -120,8 +111,7 @@ class Runner:
         self._failed: dict[tuple[str, str | None], str | None] = {}
 
     def jax(self, fn: Callable[..., Any], *args: Any) -> tuple[Any, Timing, float]:
-        """Compile ``jax.jit(fn)`` ahead of time, call it once (its output is returned) and time it.
-        Returns ``(output, timing, compile seconds)``."""
+        """``(output, timing, compile seconds)`` of ``jax.jit(fn)``, compiled ahead of time, called once and timed."""
         cs = compile_time(fn if hasattr(fn, "lower") else jax.jit(fn), *args)
         t0 = time.perf_counter()
         out = jax.block_until_ready(cs.compiled(*args))
@@ -152,10 +142,9 @@ class Runner:
 
     def add(self, impl: str, dtype: str | None, batch: int | None, make: Callable[[], Row], *, peer: bool = False,
             max_batch: int | None = None) -> Row | None:
-        """Append the row ``make()`` measures, or the reason it did not run; return it if measured.
-
-        A missing peer (``ImportError``, :class:`~benchmarks.peers.PeerUnavailable`) is one skipped row
-        for the implementation; a failure is a ``failed:`` row, and later batches point to it."""
+        """Append the row ``make()`` measures, or the reason it did not run; return it if measured. A missing
+        peer (``ImportError``, :class:`~benchmarks.peers.PeerUnavailable`) is one skipped row for the
+        implementation; a failure is a ``failed:`` row, and later batches point to it."""
         if not self.config.selects(impl):
             return None
         key = (impl, dtype)
@@ -196,9 +185,7 @@ class Runner:
                    compile_s, accuracy, samples=tm.samples if tm else None, **kw)
 
 
-def status_counts(result: Any, enumeration: Any = None) -> dict[str, int]:
-    """Counts of each status but success in a (batched) solver ``result`` (``solvers.RESULTS`` by default)."""
-    enumeration = solvers.RESULTS if enumeration is None else enumeration
-    counts = {name: int(np.sum(np.asarray(result == item))) for name, item in enumeration._name_to_item.items()
-              if name != "successful"}
-    return {k: v for k, v in counts.items() if v}
+def status_counts(result: Any, enumeration: Any = solvers.RESULTS) -> dict[str, int]:
+    """Counts of each status but success in a (batched) solver ``result``."""
+    counts = ((name, int(np.sum(np.asarray(result == item)))) for name, item in enumeration._name_to_item.items())
+    return {name: n for name, n in counts if n and name != "successful"}

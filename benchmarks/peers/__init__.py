@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import importlib
+import warnings
 from types import ModuleType
 
 __all__ = ["PeerUnavailable", "require"]
@@ -13,10 +14,13 @@ class PeerUnavailable(RuntimeError):
     """A peer library cannot be used here; ``str(exc)`` is the reason shown in the report."""
 
 
-def require(module: str, install_hint: str | None = None) -> ModuleType:
-    """Import ``module`` or raise :class:`PeerUnavailable` (any ``ImportError``), with ``install_hint``."""
+def require(module: str, install_hint: str | None = None, quiet: bool = False) -> ModuleType:
+    """Import ``module`` (``quiet``: muting its warnings) or raise :class:`PeerUnavailable`, with ``install_hint``."""
     try:
-        return importlib.import_module(module)
+        with warnings.catch_warnings():
+            if quiet:
+                warnings.simplefilter("ignore")
+            return importlib.import_module(module)
     except ImportError as exc:
         hint = f" ({install_hint})" if install_hint else ""
         raise PeerUnavailable(f"cannot import {module}: {exc}{hint}") from exc

@@ -1,10 +1,9 @@
-"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR``, and
-Python action models of :mod:`solvers.problems` (explicit Euler, quadratic cost, exact cost derivatives and
-first derivatives of the dynamics ``Fx, Fu``, all that Crocoddyl's DDP solvers use)."""
+"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR`` and Python
+action models of :mod:`solvers.problems` (with all that Crocoddyl's DDP solvers use: see :func:`python_model_class`)."""
 
 from __future__ import annotations
 
-import warnings
+import functools
 from collections.abc import Sequence
 from typing import Any
 
@@ -12,35 +11,28 @@ import numpy as np
 
 from . import PeerUnavailable, require
 
-__all__ = ["SOLVERS", "load_crocoddyl", "lqr_problem", "make_solver", "python_model_class", "swing_up_problem",
-           "unicycle_problem"]
-
-SOLVERS = ("SolverDDP", "SolverFDDP", "SolverBoxDDP")
-_HINT = "pip install crocoddyl==3.2.1"
+__all__ = ["load_crocoddyl", "lqr_problem", "python_model_class", "python_problem", "unicycle_problem"]
 
 
 def load_crocoddyl():
     """The ``crocoddyl`` module, or :class:`PeerUnavailable`."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        croc = require("crocoddyl", _HINT)
+    croc = require("crocoddyl", "pip install crocoddyl==3.2.1", quiet=True)
     if not hasattr(croc, "ActionModelAbstract"):
         raise PeerUnavailable(f"crocoddyl {getattr(croc, '__version__', '?')} has no ActionModelAbstract")
     return croc
 
-_CLASSES: dict[str, type] = {}
-
 
 def python_model_class(name: str) -> type:
-    """The Python action-model class ``name`` (``"pendulum"``, ``"cart_pole"``, ``"unicycle"``), built on
-    first use; ``cls(args, terminal=False)`` takes :mod:`solvers.problems`' ``args`` as float64 numpy
-    (``dt``, ``goal``, ``Q``, ``R``, ``QT``, physical constants); a terminal model uses ``QT``, no ``u``."""
-    if name not in _CLASSES:
-        _CLASSES.update(_build_classes(load_crocoddyl()))
-    return _CLASSES[name]
+    """The Python action-model class ``name`` (``"pendulum"``, ``"cart_pole"``, ``"unicycle"``): explicit Euler,
+    quadratic cost, exact cost derivatives and first derivatives ``Fx, Fu`` of the dynamics; ``cls(args,
+    terminal=False)`` takes :mod:`solvers.problems`' ``args`` (a terminal model uses ``QT``, no ``u``)."""
+    return _classes()[name]
 
 
-def _build_classes(croc) -> dict[str, type]:
+@functools.cache
+def _classes() -> dict[str, type]:
+    croc = load_crocoddyl()
+
     class _Quadratic(croc.ActionModelAbstract):
         """Cost ``0.5 (x-g)'diag(W)(x-g) + 0.5 u'diag(R)u``, dynamics ``x + dt xdot(x, u)`` (``jac``: its
         derivatives ``(d xdot / dx, d xdot / du)``), both defined by the subclasses."""
@@ -55,13 +47,9 @@ def _build_classes(croc) -> dict[str, type]:
             self._Lxx, self._Luu = np.diag(self.W), np.diag(self.Rw)
 
         def calc(self, data, x, u=None):
-            dx = x - self.goal
-            if u is None or self.terminal:
-                data.xnext = x
-                data.cost = 0.5 * float(dx @ (self.W * dx))
-                return
-            data.xnext = x + self.dt * self.xdot(x, u)
-            data.cost = 0.5 * float(dx @ (self.W * dx) + u @ (self.Rw * u))
+            dx, running = x - self.goal, u is not None and not self.terminal
+            data.xnext = x + self.dt * self.xdot(x, u) if running else x
+            data.cost = 0.5 * float(dx @ (self.W * dx) + (u @ (self.Rw * u) if running else 0.0))
 
         def calcDiff(self, data, x, u=None):
             dx = x - self.goal
@@ -155,40 +143,25 @@ def _shooting(croc, x0, running, terminal, T: int, bounds=None):
 
 
 def unicycle_problem(T: int, x0: Sequence[float], *, state_weight: float, control_weight: float, dt: float,
-                     bounds: tuple[np.ndarray, np.ndarray] | None = None, python_model: bool = False):
-    """A ``ShootingProblem`` of ``T`` unicycle knots (C++ ``ActionModelUnicycle``, or the Python
-    :class:`UnicycleModel` with ``python_model=True``); ``bounds`` sets ``u_lb``/``u_ub`` (BoxDDP)."""
+                     bounds: tuple[np.ndarray, np.ndarray] | None = None):
+    """A ``ShootingProblem`` of ``T`` C++ ``ActionModelUnicycle`` knots; ``bounds`` sets ``u_lb``/``u_ub`` (BoxDDP)."""
     croc = load_crocoddyl()
-    if python_model:
-        args = dict(dt=dt, goal=np.zeros(3), Q=np.full(3, state_weight**2), R=np.full(2, control_weight**2),
-                    QT=np.full(3, state_weight**2))
-        cls = python_model_class("unicycle")
-        running, terminal = cls(args), cls(args, terminal=True)
-    else:
-        running, terminal = croc.ActionModelUnicycle(), croc.ActionModelUnicycle()
-        for mdl in (running, terminal):
-            mdl.costWeights = np.array([state_weight, control_weight], dtype=np.float64)
-            mdl.dt = float(dt)
+    running, terminal = croc.ActionModelUnicycle(), croc.ActionModelUnicycle()
+    for mdl in (running, terminal):
+        mdl.costWeights = np.array([state_weight, control_weight], dtype=np.float64)
+        mdl.dt = float(dt)
     return _shooting(croc, x0, running, terminal, T, bounds)
 
 
-def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int, bounds=None):
+def lqr_problem(A, B, Q, R, N, f, q, r, x0, T: int):
     """A time-invariant LQ ``ShootingProblem`` of ``T`` ``ActionModelLQR`` knots (``N [n, m]``: jaxanim's
     ``S`` is ``N'``; Crocoddyl requires ``[[Q, N], [N', R]]`` positive semi-definite)."""
     croc = load_crocoddyl()
     arr = lambda z: np.ascontiguousarray(np.asarray(z, dtype=np.float64))  # noqa: E731
-    return _shooting(croc, x0, *(croc.ActionModelLQR(*(arr(z) for z in (A, B, Q, R, N, f, q, r))) for _ in range(2)),
-                     T, bounds)
+    return _shooting(croc, x0, *(croc.ActionModelLQR(*(arr(z) for z in (A, B, Q, R, N, f, q, r))) for _ in range(2)), T)
 
 
-def swing_up_problem(name: str, args: dict[str, Any], x0, T: int):
-    """A ``ShootingProblem`` of the Python model ``name`` (``"pendulum"``/``"cart_pole"``) with the
-    float64 values of a :class:`solvers.problems.ControlProblem`'s ``args``."""
-    croc = load_crocoddyl()
-    cls, a = python_model_class(name), {k: np.asarray(v, dtype=np.float64) for k, v in args.items()}
-    return _shooting(croc, x0, cls(a), cls(a, terminal=True), T)
-
-
-def make_solver(problem, solver: str = "SolverDDP"):
-    """``crocoddyl.<solver>(problem)``."""
-    return getattr(load_crocoddyl(), solver)(problem)
+def python_problem(name: str, args: dict[str, Any], x0, T: int):
+    """A ``ShootingProblem`` of ``T`` knots of the Python model ``name`` with a ``ControlProblem``'s ``args``."""
+    cls = python_model_class(name)  # its models take the args as float64 numpy
+    return _shooting(load_crocoddyl(), x0, cls(args), cls(args, terminal=True), T)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -22,8 +23,7 @@ def load_mujoco():
 
 
 def load_mjx():
-    """``mujoco.mjx``, or :class:`PeerUnavailable` (its import prints warnings about the optional
-    ``warp`` backend on machines without it; they are swallowed here)."""
+    """``mujoco.mjx``, or :class:`PeerUnavailable`; its import's warnings about the optional ``warp`` are muted."""
     load_mujoco()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         try:
@@ -34,13 +34,11 @@ def load_mjx():
 
 
 class MujocoSim:
-    """A MuJoCo model (``xml``) of a jaxanim model and ``B`` characters' initial states: the assembly
-    pose at rest but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions
-    are returned in jaxanim's ``body_names`` order."""
+    """A MuJoCo model (``xml``) of a jaxanim model and ``B`` characters' initial states, at rest in the assembly pose
+    but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions in ``body_names`` order."""
 
     def __init__(self, xml: str, body_names: Sequence[str], root: int, root_velocities: np.ndarray):
-        mujoco = load_mujoco()
-        self.mujoco = mujoco
+        self.mujoco = mujoco = load_mujoco()
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, n) for n in body_names])
         if np.any(self.ids < 0):
@@ -51,13 +49,14 @@ class MujocoSim:
         self.root_dof = int(self.model.jnt_dofadr[free[0]])
         v = np.asarray(root_velocities, float).reshape(-1, 3)
         self.batch = v.shape[0]
-        d = mujoco.MjData(self.model)
-        self.qpos0 = d.qpos.copy()
+        self.qpos0 = mujoco.MjData(self.model).qpos.copy()
         self.qvel0 = np.zeros((self.batch, self.model.nv))
         self.qvel0[:, self.root_dof:self.root_dof + 3] = v
         self.datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
         self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        self.initial_states = np.stack([self._state_of(i) for i in range(self.batch)])
+        self.initial_states = np.empty((self.batch, mujoco.mj_stateSize(self.model, self._spec)))
+        for i, state in enumerate(self.initial_states):
+            mujoco.mj_getState(self.model, self.reset(i, mujoco.MjData(self.model)), state, self._spec)
 
     def reset(self, i: int, data=None):
         """Put character ``i``'s initial state into ``data`` (default its own ``MjData``)."""
@@ -67,32 +66,22 @@ class MujocoSim:
         d.qvel[:] = self.qvel0[i]
         return d
 
-    def _state_of(self, i: int) -> np.ndarray:
-        d = self.reset(i, self.mujoco.MjData(self.model))
-        out = np.empty(self.mujoco.mj_stateSize(self.model, self._spec))
-        self.mujoco.mj_getState(self.model, d, out, self._spec)
-        return out
-
-    def step_loop(self, nstep: int, count: int | None = None) -> None:
-        """Reset the first ``count`` characters (default all) and ``mj_step`` each ``nstep`` times."""
+    def step_loop(self, nstep: int, count: int) -> None:
+        """Reset the first ``count`` characters and ``mj_step`` each ``nstep`` times."""
         step, m = self.mujoco.mj_step, self.model
-        for i in range(self.batch if count is None else count):
+        for i in range(count):
             d = self.reset(i)
             for _ in range(nstep):
                 step(m, d)
 
-    def rollout(self, nstep: int, pool: list, count: int | None = None) -> np.ndarray:
-        """``mujoco.rollout.rollout`` of the first ``count`` characters (default all) from their start
-        states on the threads of ``pool`` (one ``MjData`` per thread); ``[count, nstep, nstate]``."""
+    def rollout(self, nstep: int, pool: list, count: int) -> np.ndarray:
+        """``[count, nstep, nstate]``: ``mujoco.rollout.rollout`` of ``count`` start states on ``pool``'s MjData."""
         from mujoco import rollout as mj_rollout
 
-        init = self.initial_states[: self.batch if count is None else count]
-        state, _ = mj_rollout.rollout(self.model, pool, init, nstep=nstep, persistent_pool=True)
-        return state
+        return mj_rollout.rollout(self.model, pool, self.initial_states[:count], nstep=nstep, persistent_pool=True)[0]
 
     def positions(self, i: int = 0, *, state: np.ndarray | None = None, qpos: np.ndarray | None = None) -> np.ndarray:
-        """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, or of a full-physics
-        ``state`` vector, or at ``qpos`` (e.g. MJX's result)."""
+        """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, of a physics ``state`` or at ``qpos``."""
         d = self.datas[i] if state is None and qpos is None else self.mujoco.MjData(self.model)
         if state is not None:
             self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
@@ -102,23 +91,20 @@ class MujocoSim:
         return d.xpos[self.ids].copy()
 
 
-def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, tuple]:
-    """``(jax.jit(jax.vmap(rollout)), (batched mjx.Data,))``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
+def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, Any]:
+    """``(jax.jit(jax.vmap(rollout)), batched mjx.Data)``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
     character over the first ``batch`` characters' initial states (cast to the dtypes ``mjx.step``
     returns: under x64 ``put_data`` makes int32 contact indices that ``step`` returns as int64)."""
     mjx = load_mjx()
-    mujoco = sim.mujoco
-    mx = mjx.put_model(sim.model)
-    datas = []
+    mx, datas = mjx.put_model(sim.model), []
     for i in range(batch):
-        d = sim.reset(i, mujoco.MjData(sim.model))
-        mujoco.mj_forward(sim.model, d)
+        d = sim.reset(i, sim.mujoco.MjData(sim.model))
+        sim.mujoco.mj_forward(sim.model, d)
         datas.append(mjx.put_data(sim.model, d))
     dx = jax.tree.map(lambda *a: jnp.stack(a), *datas)
-    shape = jax.eval_shape(mjx.step, mx, datas[0])
-    dx = jax.tree.map(lambda a, s: jnp.asarray(a, s.dtype), dx, shape)
+    dx = jax.tree.map(lambda a, s: jnp.asarray(a, s.dtype), dx, jax.eval_shape(mjx.step, mx, datas[0]))
 
     def one(d):
         return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), d, None, length=nstep)[0].qpos
 
-    return jax.jit(jax.vmap(one)), (dx,)
+    return jax.jit(jax.vmap(one)), dx

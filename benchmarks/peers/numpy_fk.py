@@ -8,29 +8,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["NumpyFK", "forward_kinematics", "quat_to_matrix"]
+__all__ = ["FKArrays", "forward_kinematics"]
 
 
-class NumpyFK(NamedTuple):
-    """``rotations [B, joints, 3, 3]`` (``R_world_joint``), ``positions [B, joints, 3]``, ``end_site_positions``."""
+class FKArrays(NamedTuple):
+    """World ``rotations [B, joints, 3, 3]``, ``positions [B, joints, 3]``, ``end_site_positions`` (naive_fk: no B)."""
 
     rotations: np.ndarray
     positions: np.ndarray
     end_site_positions: np.ndarray
 
 
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``[..., 3, 3]`` (``q``'s dtype) of wxyz quaternions ``[..., 4]``, normalized first."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    m = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                  2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                  2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
-    return m.reshape(q.shape[:-1] + (3, 3)).astype(q.dtype, copy=False)
-
-
 def forward_kinematics(parents: Sequence[int], end_site_parents: Sequence[int], end_site_offsets: np.ndarray,
-                       rotations: np.ndarray, translations: np.ndarray) -> NumpyFK:
+                       rotations: np.ndarray, translations: np.ndarray) -> FKArrays:
     """``R_world_j = R_world_parent @ R_parent_j``, ``p_world_j = p_world_parent + R_world_parent @ t_parent_j``
     and End Sites at their joint's transform of their OFFSET (``rotations [B, joints, 3, 3]``, root first)."""
     b, nj = rotations.shape[:2]
@@ -43,4 +33,4 @@ def forward_kinematics(parents: Sequence[int], end_site_parents: Sequence[int], 
         p[:, j] = p[:, parents[j]] + np.einsum("bij,bj->bi", Rp, translations[:, j])
     idx = np.asarray(end_site_parents, dtype=np.int64)
     ends = p[:, idx] + np.einsum("beij,ej->bei", R[:, idx], np.asarray(end_site_offsets, dtype=rotations.dtype))
-    return NumpyFK(R, p, ends)
+    return FKArrays(R, p, ends)

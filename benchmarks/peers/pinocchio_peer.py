@@ -1,7 +1,5 @@
-"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model`` (free flyer root, spherical joints
-at their OFFSETs, a ``JOINT`` frame per joint, an ``OP_FRAME`` per End Site), and timed loops. Pinocchio's
-``q`` stores quaternions xyzw and its velocities are in local frames (``R <- R exp(w)``); jaxanim's columns are
-parent-frame increments (``R <- exp(d) R = R exp(R^T d)``, :func:`to_parent_frame_columns`)."""
+"""Pinocchio adapter: a :class:`jaxanim.Skeleton` as a ``pinocchio.Model`` (free flyer root, spherical joints, a
+``JOINT`` frame per joint, an ``OP_FRAME`` per End Site), timed loops and CLIK; ``q`` stores quaternions xyzw."""
 
 from __future__ import annotations
 
@@ -13,13 +11,8 @@ import numpy as np
 
 from . import require
 
-__all__ = ["PinocchioSkeleton", "build_model", "configurations", "fk_loop", "frame_jacobians", "jacobian_loop",
-           "load_pinocchio", "positions", "to_parent_frame_columns"]
-
-
-def load_pinocchio() -> Any:
-    """Import ``pinocchio`` or raise :class:`~benchmarks.peers.PeerUnavailable`."""
-    return require("pinocchio", "pip install pin==4.0.0")
+__all__ = ["PinocchioSkeleton", "build_model", "clik_loop", "clik_solve", "configurations", "fk_loop",
+           "frame_jacobians", "jacobian_loop", "positions", "to_parent_frame_columns", "to_poses"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,11 +27,10 @@ class PinocchioSkeleton:
     frame_ids: dict[str, int]
 
 
-def build_model(skeleton, translations: np.ndarray | None = None) -> PinocchioSkeleton:
-    """The Pinocchio model of ``skeleton``; non-root joints sit at ``translations [J, 3]`` if given
-    (fixed offsets of one frame), else at their OFFSETs. Raises ``PeerUnavailable`` without Pinocchio."""
-    pin = load_pinocchio()
-    offsets = np.asarray(skeleton.offsets if translations is None else translations, dtype=np.float64)
+def build_model(skeleton) -> PinocchioSkeleton:
+    """The Pinocchio model of ``skeleton`` (non-root joints at their OFFSETs); ``PeerUnavailable`` without Pinocchio."""
+    pin = require("pinocchio", "pip install pin==4.0.0")
+    offsets = np.asarray(skeleton.offsets, dtype=np.float64)
     model = pin.Model()
     model.name = "jaxanim_skeleton"
     joint_ids, joint_frames, end_ids, frame_ids = [], [], [], {}
@@ -91,7 +83,7 @@ def positions(ps: PinocchioSkeleton, qs: Sequence[np.ndarray]) -> tuple[np.ndarr
     for b, q in enumerate(qs):
         pin.forwardKinematics(model, data, q)
         pin.updateFramePlacements(model, data)
-        pj[b] = [data.oMi[j].translation for j in ps.joint_ids]
+        pj[b] = [data.oMi[j].translation for j in ps.joint_ids]  # copies: oMi / oMf are views into data
         pe[b] = [data.oMf[f].translation for f in ps.end_site_frame_ids]
     return pj, pe
 
@@ -113,3 +105,49 @@ def to_parent_frame_columns(jac: np.ndarray, local_rotations: np.ndarray) -> np.
     rots = np.concatenate([local_rotations[:, :1], local_rotations], axis=1)
     assert rots.shape[1] == nv // 3
     return np.einsum("bsrkc,bkdc->bsrkd", jac.reshape(b, s, 6, nv // 3, 3), rots).reshape(b, s, 6, nv)
+
+
+def clik_solve(ps: PinocchioSkeleton, q0: np.ndarray, frame_ids: Sequence[int], positions: np.ndarray,
+               rotations: np.ndarray, *, damping: float, max_iterations: int, position_tolerance: float,
+               orientation_tolerance: float) -> tuple[np.ndarray, int, bool]:
+    """``(q, iterations, converged)`` of damped least-squares IK (CLIK) from ``q0 [nq]`` to world targets
+    ``positions [frames, 3]`` / ``rotations [frames, 3, 3]``: ``q = integrate(q, J^T (J J^T + lambda I)^{-1} e)``,
+    ``e = [p_k - p(q); log3(R_k R(q)^T)]`` in world axes, ``J`` ``LOCAL_WORLD_ALIGNED``, until all errors pass."""
+    pin, model, data = ps.pin, ps.model, ps.data
+    lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    n = len(frame_ids)
+    e, jac, damp = np.empty(6 * n), np.empty((6 * n, model.nv)), damping * np.eye(6 * n)
+    q = np.array(q0, dtype=np.float64)
+    for it in range(max_iterations + 1):
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        done = True
+        for k, fid in enumerate(frame_ids):
+            oMf = data.oMf[fid]
+            dp, w = positions[k] - oMf.translation, pin.log3(rotations[k] @ oMf.rotation.T)
+            e[6 * k:6 * k + 3], e[6 * k + 3:6 * k + 6] = dp, w
+            done = done and dp @ dp < position_tolerance**2 and w @ w < orientation_tolerance**2
+        if done:
+            return q, it, True
+        if it == max_iterations:
+            break
+        for k, fid in enumerate(frame_ids):
+            jac[6 * k:6 * k + 6] = pin.getFrameJacobian(model, data, fid, lwa)
+        q = pin.integrate(model, q, jac.T @ np.linalg.solve(jac @ jac.T + damp, e))
+    return q, max_iterations, False
+
+
+def clik_loop(ps: PinocchioSkeleton, q0s: Sequence[np.ndarray], frame_ids: Sequence[int], positions: np.ndarray,
+              rotations: np.ndarray, **kwargs: Any) -> tuple[list[np.ndarray], np.ndarray]:
+    """:func:`clik_solve` for each problem (the timed call): ``(final configurations, iterations [B])``."""
+    out = [clik_solve(ps, q0, frame_ids, positions[b], rotations[b], **kwargs) for b, q0 in enumerate(q0s)]
+    return [q for q, _, _ in out], np.array([it for _, it, _ in out], dtype=np.int64)
+
+
+def to_poses(qs: Sequence[np.ndarray], offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(rotations [B, J, 4] wxyz, translations [B, J, 3])`` of configurations (non-root translations = OFFSETs)."""
+    q = np.stack([np.asarray(x, dtype=np.float64) for x in qs])
+    b, J = q.shape[0], offsets.shape[0]
+    t = np.broadcast_to(np.asarray(offsets, dtype=np.float64), (b, J, 3)).copy()
+    t[:, 0] = q[:, :3]
+    return q[:, 3:].reshape(b, J, 4)[..., [3, 0, 1, 2]], t
