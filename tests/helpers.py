@@ -6,11 +6,13 @@ import contextlib
 import functools
 import logging
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import jaxanim
+from jaxanim import ik
 from jaxanim import rotations as rot
 from jaxanim.bvh import read_bvh
 
@@ -65,6 +67,20 @@ def shared_clip(stem: str):
 def batched_fk():
     """``jit(vmap(forward_kinematics))`` over frames, shared by every test (compiled per structure)."""
     return jax.jit(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)))
+
+
+#: ``forward_kinematics`` as one compiled program per signature (eager FK dispatches op by op,
+#: compiling each primitive separately: seconds on the CMU skeleton).
+jitted_fk = eqx.filter_jit(jaxanim.forward_kinematics)
+
+
+def jitted_limit_violation(skel, batched=False):
+    """``(limits, rotations) -> ik.limit_violation(skel, limits, rotations)``, jitted (eager, it
+    dispatches op by op, and an eager ``vmap`` too: each op compiled separately), over a batch of
+    poses if ``batched``. ``skel`` is a constant (a swing-twist limit without an axis takes it from
+    the concrete offsets); limits with other bounds reuse the compile."""
+    fn = functools.partial(ik.limit_violation, skel)
+    return eqx.filter_jit(jax.vmap(fn, in_axes=(None, 0)) if batched else fn)
 
 
 def quick_bench_config(**kw):

@@ -15,10 +15,10 @@ import jaxanim
 from jaxanim import JaxanimError, character, contact, control, physics
 
 from .conftest import shared_data_dir
+from .helpers import jitted_fk as _fk
 from .helpers import phys_cmu_character, xla_compiles
 
 
-_fk = eqx.filter_jit(jaxanim.forward_kinematics)  # one program per signature (eager FK compiles op by op)
 
 
 @pytest.fixture(scope="module")

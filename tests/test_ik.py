@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,7 +17,8 @@ from jaxanim.ik import _problem as ik_impl
 from jaxanim import rotations as rot
 
 from .conftest import shared_data_dir
-from .helpers import assert_close, batched_fk, random_pose, shared_clip, small_skeleton
+from .helpers import assert_close, batched_fk, jitted_limit_violation, random_pose, shared_clip, small_skeleton
+from .helpers import jitted_fk as _fk
 
 _TOL_REACH = 1e-6
 
@@ -64,13 +64,6 @@ EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "He
 
 
 @jax.jit
-def _fk(skel, q, t):
-    """FK, jitted (eager FK dispatches op by op, compiling each primitive separately: seconds on
-    the CMU skeleton); one compile per skeleton structure, shared by the tests of this module."""
-    return jaxanim.forward_kinematics(skel, q, t)
-
-
-@jax.jit
 def _random_pose_sites(skel, eul, root_rotvec, root_t):
     """Site positions and world rotations of the pose ``_random_targets`` draws (jitted)."""
     q = rot.euler_to_quat(eul, "ZYX")
@@ -78,15 +71,6 @@ def _random_pose_sites(skel, eul, root_rotvec, root_t):
     t = skel.offsets.at[0].set(root_t)
     out = jaxanim.forward_kinematics(skel, q, t)
     return out.site_positions(), rot.matrix_to_quat(out.rotations)
-
-
-def jitted_limit_violation(skel, batched=False):
-    """``(limits, rotations) -> ik.limit_violation(skel, limits, rotations)``, jitted (eager, it
-    dispatches op by op, and an eager ``vmap`` too: each op compiled separately), over a batch of
-    poses if ``batched``. ``skel`` is a constant (a swing-twist limit without an axis takes it from
-    the concrete offsets); limits with other bounds reuse the compile. tests/test_ik_limits.py uses it too."""
-    fn = functools.partial(ik.limit_violation, skel)
-    return eqx.filter_jit(jax.vmap(fn, in_axes=(None, 0)) if batched else fn)
 
 
 def _random_targets(skel, seed):

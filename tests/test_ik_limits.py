@@ -19,8 +19,7 @@ from jaxanim import rotations as rot
 from jaxanim.limits import EulerLimit, SwingTwistLimit, _charts
 
 from .conftest import shared_data_dir
-from .helpers import random_pose, shared_clip, small_skeleton
-from .test_ik import jitted_limit_violation
+from .helpers import jitted_limit_violation, random_pose, shared_clip, small_skeleton
 
 _VIOLATION_ATOL = 1e-12  # hard limits hold exactly up to round-off of the quaternion <-> chart maps
 
