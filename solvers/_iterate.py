@@ -3,9 +3,9 @@ r"""The one iteration driver behind every iterative solver of the project.
 :func:`iterate` runs ``state -> step(state)`` until ``done(state)`` holds or ``max_steps`` steps
 have been taken, in one of two modes that give the same iterates (also under ``jax.vmap``):
 
-- adaptive (``fixed_steps=False``): a ``lax.while_loop`` with early exit. Under ``vmap`` it runs
-  until its slowest element has finished, and evaluates the predicate of every element every
-  iteration;
+- adaptive (``fixed_steps=False``): a ``lax.while_loop`` with early exit. Under ``vmap`` the
+  batch runs through a fixed number of lanes (:mod:`solvers._lanes`): a finished element's lane
+  takes the next waiting element, so a batch costs its mean step count, not its maximum;
 - fixed (``fixed_steps=True``): a ``lax.scan`` of exactly ``max_steps`` iterations in which a
   finished element is frozen (its step is computed and discarded), for batches: a scan has no
   per-iteration predicate and its cost is known in advance.
@@ -47,6 +47,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
+
+from . import _lanes
 
 __all__ = ["Iteration", "all_finite", "iterate"]
 
@@ -103,6 +105,7 @@ def iterate(
     fixed_steps: bool = False,
     finite: Callable[[State], Bool[Array, ""]] | None = all_finite,
     record: Callable[[State], Float[Array, ""] | PyTree] | None = None,
+    lanes: int = _lanes.LANES,
 ) -> Iteration[State]:
     """Iterate ``step`` from ``init`` until ``done`` holds, at most ``max_steps`` times.
 
@@ -119,6 +122,10 @@ def iterate(
             through ``done``).
         record: optional ``state -> scalar`` (or a pytree of arrays) whose values form
             ``Iteration.history``.
+        lanes: a batched (``jax.vmap``) call of the adaptive loop runs on this many lanes
+            (:func:`solvers._lanes.while_loop`, static): a finished element's lane takes the
+            next waiting one, so the batch costs its mean step count rather than its maximum,
+            and the lanes' working set stays in cache. The same iterates for every element.
 
     Returns:
         An :class:`Iteration` ``(state, num_steps, done, nonfinite, history)``.
@@ -156,7 +163,7 @@ def iterate(
 
         it, _ = jax.lax.scan(scan_body, it0, None, length=max_steps)
     else:
-        it = jax.lax.while_loop(lambda it: jnp.invert(it.done) & (it.num_steps < max_steps), body, it0)
+        it = _lanes.while_loop(lambda it: jnp.invert(it.done) & (it.num_steps < max_steps), body, it0, lanes=lanes)
     if record is not None:
         kept = jnp.arange(max_steps + 1) <= it.num_steps
 
