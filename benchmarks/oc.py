@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable, Sequence
 
@@ -17,7 +18,7 @@ from .peers import crocoddyl_oc as co, require
 from .report import Row, Table, Target, format_seconds, sel
 from .timing import Runner, Timing, status_counts, time_call
 
-__all__ = ["OCSizes", "initial_states", "make_dare_systems", "make_lq", "riccati_residual", "run_oc"]
+__all__ = ["OCSizes", "initial_states", "make_dare_systems", "make_lq", "riccati_residual", "run_oc", "swing_problem"]
 
 SEED = 0
 UNICYCLE_X0 = (-1.0, -1.0, 1.0)
@@ -26,6 +27,7 @@ SWING_MAX_STEPS = {"pendulum": 100, "cart_pole": 300}
 ANGLE_INDEX = {"pendulum": 0, "cart_pole": 1}
 UPRIGHT_TOLERANCE = 0.1  # rad: success needs |theta_T - pi| below this
 AGREE_RTOL = 1e-6  # swing-up final costs "agree" below this relative difference
+SWING_STOP = 1e-9  # both sides stop once the full step's predicted cost decrease is below this (absolute)
 UNICYCLE_MAX_STEPS = 500  # both sides (box-DDP needs more than 100 here)
 _CROC = "Crocoddyl"
 _STARTS = {"pendulum": "angle uniform in ±π/4 of hanging, rate in ±0.5 rad/s",
@@ -83,6 +85,26 @@ def riccati_residual(A, B, Q, R, P) -> np.ndarray:
     N = BP @ A
     F = np.swapaxes(A, -1, -2) @ P @ A - P - np.swapaxes(N, -1, -2) @ np.linalg.solve(R + BP @ B, N) + Q
     return np.abs(F).max(axis=(-2, -1)) / np.abs(P).max(axis=(-2, -1))
+
+
+def swing_problem(name: str, T: int | None = None) -> problems.ControlProblem:
+    """``solvers.problems.<name>(T=T)`` as Crocoddyl's C++ models state it exactly (:func:`~benchmarks.peers.
+    crocoddyl_oc.swing_problem`): semi-implicit Euler ``v+ = v + dt a``, ``q+ = q + dt v+`` (Crocoddyl's
+    ``IntegratedActionModelEuler``; the problems use explicit Euler, ``q+ = q + dt v``) with the problems' own
+    acceleration ``a``, and an undamped pendulum (Crocoddyl's free forward dynamics has no joint damping)."""
+    kw = ({} if T is None else {"T": T}) | ({"damping": 0.0} if name == "pendulum" else {})
+    prob = getattr(problems, name)(**kw)
+    return dataclasses.replace(prob, dynamics=_semi_implicit(prob.dynamics))
+
+
+@functools.cache  # one callback per problem: repeated solves reuse one compilation
+def _semi_implicit(explicit: Callable) -> Callable:
+    def dynamics(x, u, t, args):
+        nq = x.shape[0] // 2
+        v_next = explicit(x, u, t, args)[nq:]  # v + dt a(x, u)
+        return jnp.concatenate([x[:nq] + args["dt"] * v_next, v_next])
+
+    return dynamics
 
 
 def initial_states(name: str, count: int, seed: int = SEED) -> np.ndarray:

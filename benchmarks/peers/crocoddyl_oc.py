@@ -1,5 +1,6 @@
-"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR`` and Python
-action models of :mod:`solvers.problems` (with all that Crocoddyl's DDP solvers use: see :func:`python_model_class`)."""
+"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR``, the swing-ups
+as Pinocchio models under Crocoddyl's C++ free forward dynamics (:func:`swing_problem`), and Python action models of
+:mod:`solvers.problems` (with all that Crocoddyl's DDP solvers use: see :func:`python_model_class`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import numpy as np
 
 from . import PeerUnavailable, require
 
-__all__ = ["load_crocoddyl", "lqr_problem", "python_model_class", "python_problem", "unicycle_problem"]
+__all__ = ["load_crocoddyl", "lqr_problem", "pinocchio_model", "python_model_class", "python_problem", "swing_problem",
+           "unicycle_problem"]
 
 
 def load_crocoddyl():
@@ -165,3 +167,67 @@ def python_problem(name: str, args: dict[str, Any], x0, T: int):
     """A ``ShootingProblem`` of ``T`` knots of the Python model ``name`` with a ``ControlProblem``'s ``args``."""
     cls = python_model_class(name)  # its models take the args as float64 numpy
     return _shooting(load_crocoddyl(), x0, cls(args), cls(args, terminal=True), T)
+
+
+def pinocchio_model(name: str, args: dict[str, Any]):
+    """The ``pinocchio.Model`` of :func:`solvers.problems.pendulum` (``"pendulum"``: a point mass ``mass`` at
+    ``length`` below a revolute x joint) or :func:`~solvers.problems.cart_pole` (``"cart_pole"``: a point-mass cart
+    on a prismatic y joint carrying a point-mass pole of ``pole_length`` on a revolute x joint), ``theta = 0``
+    hanging down (then ``+theta`` swings the mass to ``+y``, as ``+x`` in the problems), gravity ``-gravity e_z``.
+
+    Raises ``ValueError`` for a damped pendulum: Pinocchio's ABA and Crocoddyl's free forward dynamics have no
+    viscous joint damping (``model.damping`` is not used by ``pinocchio.aba``).
+    """
+    pin = require("pinocchio", "pip install pin==4.0.0")
+    a = {k: np.asarray(v, dtype=np.float64) for k, v in args.items()}
+    if name == "pendulum" and float(a["damping"]) != 0.0:
+        raise ValueError(f"damping: Crocoddyl's free forward dynamics has none; expected 0, got {float(a['damping'])}")
+    model = pin.Model()
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -float(a["gravity"])]), np.zeros(3))
+
+    def body(parent: int, joint, label: str, mass, drop) -> int:  # a point mass ``drop`` below the joint
+        j = model.addJoint(parent, joint, pin.SE3.Identity(), label)
+        model.appendBodyToJoint(j, pin.Inertia(float(mass), np.array([0.0, 0.0, -float(drop)]), np.zeros((3, 3))),
+                                pin.SE3.Identity())
+        return j
+
+    if name == "pendulum":
+        body(0, pin.JointModelRX(), "pole", a["mass"], a["length"])
+    elif name == "cart_pole":
+        body(body(0, pin.JointModelPY(), "cart", a["cart_mass"], 0.0), pin.JointModelRX(), "pole", a["pole_mass"],
+             a["pole_length"])
+    else:
+        raise ValueError(f"name: expected 'pendulum' or 'cart_pole', got {name!r}")
+    return model
+
+
+def swing_problem(name: str, args: dict[str, Any], x0, T: int):
+    """A ``ShootingProblem`` of ``T`` C++ knots for a swing-up of :func:`pinocchio_model` with a ``ControlProblem``'s
+    ``args``: ``DifferentialActionModelFreeFwdDynamics`` (ABA, ``ActuationModelFull``) under
+    ``IntegratedActionModelEuler`` (semi-implicit: ``v+ = v + dt a``, ``q+ = q + dt v+``), cost ``CostModelSum`` of
+    ``ResidualModelState`` (to ``goal``) and ``ResidualModelControl`` with ``ActivationModelWeightedQuad`` weights
+    ``Q / dt`` and ``R / dt`` (the integrator multiplies by ``dt``), terminal ``QT``.
+
+    The cart-pole's pole joint gets a torque too (Crocoddyl's C++ actuation models leave only a *first* joint
+    unactuated): it is pinned to 0 by ``u_lb = u_ub = 0``, which the box solvers (``SolverBoxDDP`` / ``BoxFDDP``)
+    enforce exactly, so ``u = [force, 0]``.
+    """
+    croc, pin_model = load_crocoddyl(), pinocchio_model(name, args)
+    a = {k: np.asarray(v, dtype=np.float64) for k, v in args.items()}
+    state = croc.StateMultibody(pin_model)
+    actuation = croc.ActuationModelFull(state)
+    nu, dt = actuation.nu, float(a["dt"])
+
+    def differential(state_weights, control_weight=None):
+        costs = croc.CostModelSum(state, nu)
+        costs.addCost("state", croc.CostModelResidual(state, croc.ActivationModelWeightedQuad(state_weights),
+                                                      croc.ResidualModelState(state, a["goal"], nu)), 1.0)
+        if control_weight is not None:
+            costs.addCost("control", croc.CostModelResidual(state, croc.ActivationModelWeightedQuad(
+                np.full(nu, control_weight)), croc.ResidualModelControl(state, nu)), 1.0)
+        return croc.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+
+    running = croc.IntegratedActionModelEuler(differential(a["Q"] / dt, float(a["R"][0]) / dt), dt)
+    terminal = croc.IntegratedActionModelEuler(differential(a["QT"]), 0.0)
+    pinned = (np.r_[-np.inf, 0.0], np.r_[np.inf, 0.0]) if name == "cart_pole" else None
+    return _shooting(croc, x0, running, terminal, T, pinned)
