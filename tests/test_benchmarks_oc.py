@@ -69,7 +69,7 @@ def test_reduced_run_without_crocoddyl(monkeypatch):
 
 
 def test_reduced_crocoddylbench_rows():
-    """Crocoddyl rows alone: the unicycle optimum, the LQ cost convention, a pendulum loop."""
+    """Crocoddyl rows alone: the unicycle optimum, the LQ cost convention, a C++ pendulum loop."""
     pytest.importorskip("crocoddyl")
     config = quick_bench_config(only=("crocoddyl*",))
     tables = run_oc(config, _TINY, tables=("unicycle", "lqr", "swing_up"))
@@ -91,6 +91,9 @@ def test_reduced_crocoddylbench_rows():
     _, pend = bench_rows(tables, "oc-pendulum")
     row = pend[("Crocoddyl SolverDDP", 2)]
     assert row.chars_per_call >= 2 and row.accuracy == "reference" and row.success == 1.0
+    assert "C++ models" in row.note, row.note
+    agree, both = pend[("Crocoddyl SolverDDP (1 thread)", 2)].accuracy.split(" ")[0].split("/")  # same solves
+    assert agree == both and int(both) >= 2
 
 
 @pytest.mark.parametrize("name", ["pendulum", "cart_pole", "unicycle"])
