@@ -1,6 +1,6 @@
 """Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR``, the swing-ups
-as Pinocchio models under Crocoddyl's C++ free forward dynamics (:func:`swing_problem`), and Python action models of
-:mod:`solvers.problems` (with all that Crocoddyl's DDP solvers use: see :func:`python_model_class`)."""
+as Pinocchio models under Crocoddyl's C++ free forward dynamics (:func:`swing_problem`), and the unicycle as a Python
+action model (:func:`python_model_class`, to show what a Python model costs)."""
 
 from __future__ import annotations
 
@@ -25,9 +25,10 @@ def load_crocoddyl():
 
 
 def python_model_class(name: str) -> type:
-    """The Python action-model class ``name`` (``"pendulum"``, ``"cart_pole"``, ``"unicycle"``): explicit Euler,
+    """The Python action-model class ``name`` (only ``"unicycle"``: Crocoddyl's unicycle): explicit Euler,
     quadratic cost, exact cost derivatives and first derivatives ``Fx, Fu`` of the dynamics; ``cls(args,
-    terminal=False)`` takes :mod:`solvers.problems`' ``args`` (a terminal model uses ``QT``, no ``u``)."""
+    terminal=False)`` takes :mod:`solvers.problems`' ``args`` (a terminal model uses ``QT``, no ``u``). Once one is
+    built, Crocoddyl runs every later ``ShootingProblem`` of the process on one thread."""
     return _classes()[name]
 
 
@@ -65,62 +66,6 @@ def _classes() -> dict[str, type]:
             data.Lu = self.Rw * u
             data.Luu = self._Luu
 
-    class PendulumModel(_Quadratic):
-        """:func:`solvers.problems.pendulum`: ``m l^2 theta'' = u - b theta' - m g l sin(theta)``."""
-
-        nx, nu_ = 2, 1
-
-        def __init__(self, args, terminal=False):
-            super().__init__(args, terminal)
-            a = self.a
-            self.ml2, self.mgl, self.b = (float(a["mass"] * a["length"] ** 2),
-                                          float(a["mass"] * a["gravity"] * a["length"]), float(a["damping"]))
-
-        def xdot(self, x, u):
-            th, om = x
-            return np.array([om, (u[0] - self.b * om - self.mgl * np.sin(th)) / self.ml2])
-
-        def jac(self, x, u):
-            fx = np.array([[0.0, 1.0], [-self.mgl * np.cos(x[0]) / self.ml2, -self.b / self.ml2]])
-            return fx, np.array([[0.0], [1.0 / self.ml2]])
-
-    class CartPoleModel(_Quadratic):
-        """:func:`solvers.problems.cart_pole` (Tedrake's cart-pole, ``theta = 0`` hanging down)."""
-
-        nx, nu_ = 4, 1
-
-        def __init__(self, args, terminal=False):
-            super().__init__(args, terminal)
-            self.mc, self.mp, self.l, self.g = (float(self.a[k]) for k in ("cart_mass", "pole_mass", "pole_length",
-                                                                            "gravity"))
-
-        def xdot(self, x, u):
-            _, th, v, om = x
-            mc, mp, l, g = self.mc, self.mp, self.l, self.g
-            s, c, f = np.sin(th), np.cos(th), u[0]
-            den = mc + mp * s * s
-            return np.array([v, om, (f + mp * s * (l * om * om + g * c)) / den,
-                             (-f * c - mp * l * om * om * c * s - (mc + mp) * g * s) / (l * den)])
-
-        def jac(self, x, u):
-            _, th, _, om = x
-            mc, mp, l, g = self.mc, self.mp, self.l, self.g
-            s, c, f = np.sin(th), np.cos(th), u[0]
-            den, dden = mc + mp * s * s, 2.0 * mp * s * c
-            na = f + mp * s * (l * om * om + g * c)
-            na_th = mp * (c * (l * om * om + g * c) - g * s * s)
-            na_om = 2.0 * mp * s * l * om
-            nb = -f * c - mp * l * om * om * c * s - (mc + mp) * g * s
-            nb_th = f * s - mp * l * om * om * (c * c - s * s) - (mc + mp) * g * c
-            nb_om = -2.0 * mp * l * om * c * s
-            fx = np.zeros((4, 4))
-            fx[0, 2] = fx[1, 3] = 1.0
-            fx[2, 1] = (na_th * den - na * dden) / (den * den)
-            fx[2, 3] = na_om / den
-            fx[3, 1] = (nb_th * den - nb * dden) / (l * den * den)
-            fx[3, 3] = nb_om / (l * den)
-            return fx, np.array([[0.0], [0.0], [1.0 / den], [-c / (l * den)]])
-
     class UnicycleModel(_Quadratic):
         """Crocoddyl's ``ActionModelUnicycle`` in Python (as :func:`solvers.problems.unicycle`)."""
 
@@ -134,7 +79,7 @@ def _classes() -> dict[str, type]:
             return (np.array([[0.0, 0.0, -s * u[0]], [0.0, 0.0, c * u[0]], [0.0, 0.0, 0.0]]),
                     np.array([[c, 0.0], [s, 0.0], [0.0, 1.0]]))
 
-    return {"pendulum": PendulumModel, "cart_pole": CartPoleModel, "unicycle": UnicycleModel}
+    return {"unicycle": UnicycleModel}
 
 
 def _shooting(croc, x0, running, terminal, T: int, bounds=None):
