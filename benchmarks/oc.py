@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable, Sequence
 
@@ -17,15 +18,17 @@ from .peers import crocoddyl_oc as co, require
 from .report import Row, Table, Target, format_seconds, sel
 from .timing import Runner, Timing, status_counts, time_call
 
-__all__ = ["OCSizes", "initial_states", "make_dare_systems", "make_lq", "riccati_residual", "run_oc"]
+__all__ = ["OCSizes", "initial_states", "make_dare_systems", "make_lq", "riccati_residual", "run_oc", "swing_problem"]
 
 SEED = 0
 UNICYCLE_X0 = (-1.0, -1.0, 1.0)
 UNICYCLE_BOUNDS = ((-2.0, -1.5), (2.0, 1.5))  # (u_min, u_max): speed, turn rate; the optimum leaves it
-SWING_MAX_STEPS = {"pendulum": 100, "cart_pole": 300}
+SWING_MAX_STEPS = {"pendulum": 100, "cart_pole": 600}  # both sides; first-order solvers take ~330-490 on the cart-pole
 ANGLE_INDEX = {"pendulum": 0, "cart_pole": 1}
 UPRIGHT_TOLERANCE = 0.1  # rad: success needs |theta_T - pi| below this
 AGREE_RTOL = 1e-6  # swing-up final costs "agree" below this relative difference
+SWING_STOP = 1e-9  # both sides stop once the full step's predicted cost decrease is below this (absolute)
+_SWING_PEERS = {"pendulum": ("SolverDDP", "SolverFDDP"), "cart_pole": ("SolverBoxDDP", "SolverBoxFDDP")}
 UNICYCLE_MAX_STEPS = 500  # both sides (box-DDP needs more than 100 here)
 _CROC = "Crocoddyl"
 _STARTS = {"pendulum": "angle uniform in ±π/4 of hanging, rate in ±0.5 rad/s",
@@ -85,6 +88,26 @@ def riccati_residual(A, B, Q, R, P) -> np.ndarray:
     return np.abs(F).max(axis=(-2, -1)) / np.abs(P).max(axis=(-2, -1))
 
 
+def swing_problem(name: str, T: int | None = None) -> problems.ControlProblem:
+    """``solvers.problems.<name>(T=T)`` as Crocoddyl's C++ models state it exactly (:func:`~benchmarks.peers.
+    crocoddyl_oc.swing_problem`): semi-implicit Euler ``v+ = v + dt a``, ``q+ = q + dt v+`` (Crocoddyl's
+    ``IntegratedActionModelEuler``; the problems use explicit Euler, ``q+ = q + dt v``) with the problems' own
+    acceleration ``a``, and an undamped pendulum (Crocoddyl's free forward dynamics has no joint damping)."""
+    kw = ({} if T is None else {"T": T}) | ({"damping": 0.0} if name == "pendulum" else {})
+    prob = getattr(problems, name)(**kw)
+    return dataclasses.replace(prob, dynamics=_semi_implicit(prob.dynamics))
+
+
+@functools.cache  # one callback per problem: repeated solves reuse one compilation
+def _semi_implicit(explicit: Callable) -> Callable:
+    def dynamics(x, u, t, args):
+        nq = x.shape[0] // 2
+        v_next = explicit(x, u, t, args)[nq:]  # v + dt a(x, u)
+        return jnp.concatenate([x[:nq] + args["dt"] * v_next, v_next])
+
+    return dynamics
+
+
 def initial_states(name: str, count: int, seed: int = SEED) -> np.ndarray:
     """``[count, n]`` seeded swing-up starts near hanging (:data:`_STARTS`)."""
     rng = np.random.default_rng(seed)
@@ -116,7 +139,7 @@ def _croc_single(run: Runner, impl: str, problem, solver: str, maxiter: int, acc
             f"{cost:.12g}; {what}; {tm.samples} single-call samples: min {format_seconds(tm.min)}, median "
             f"{format_seconds(tm.median)}, max {format_seconds(slowest)}")
     return run.row(impl, "float64", 1, tm, accuracy=accuracy(cost, np.array(s.us)), success=float(ok), note=note,
-                   extra=dict(cost=cost, its=its, slowest=slowest))
+                   extra=dict(cost=cost, its=its, fastest=tm.min, slowest=slowest))
 
 
 def _solve(prob, method: str, **options) -> Callable:
@@ -187,13 +210,17 @@ def _unicycle_table(config, sz: OCSizes) -> Table:
         table.notes.append(f"Crocoddyl SolverDDP on the same unicycle written as a Python action model: "
                            f"{format_seconds(py.time_min_s)} vs {format_seconds(c.time_min_s)} with the C++ model "
                            f"({py.time_min_s / c.time_min_s:.2g}x, fastest samples); the swing-up peers below are "
-                           "Python models.")
-    wide = [f"{r.implementation} {format_seconds(r.time_min_s)} to {format_seconds(r.extra['slowest'])}"
-            for r in rows.values() if "slowest" in r.extra and r.extra["slowest"] > 10 * r.time_min_s]
-    if wide:
-        table.notes.append("Crocoddyl's single-call samples spread over more than 10x in this run (" + ", ".join(wide)
-                           + "), with the same iterations and result: read its min column.")
+                           "C++ models.")
+    _note_wide_spread(table, "single-call samples", "with the same iterations and result: read its min column.")
     return table
+
+
+def _note_wide_spread(table: Table, what: str, tail: str) -> None:
+    """A note naming the rows whose ``extra`` ``slowest`` is over 10x their ``fastest`` (Crocoddyl's slow mode)."""
+    wide = [f"{r.implementation} {format_seconds(r.extra['fastest'])} to {format_seconds(r.extra['slowest'])}"
+            for r in table.rows if r.measured and r.extra.get("slowest", 0.0) > 10 * r.extra.get("fastest", np.inf)]
+    if wide:
+        table.notes.append(f"Crocoddyl's {what} spread over more than 10x in this run ({', '.join(wide)}), {tail}")
 
 
 def _lqr_table(config, sz: OCSizes) -> Table:
@@ -288,7 +315,7 @@ def _dare_table(config, sz: OCSizes) -> Table:
 
 
 def _agreement(cost, ok, ref: Row | None) -> str:
-    """``agree/both (median rel diff)`` against Crocoddyl SolverDDP on the problems both solved."""
+    """``agree/both (median rel diff)`` against the Crocoddyl reference row ``ref`` on the problems both solved."""
     if ref is None:
         return "n/a (no Crocoddyl)"
     k = min(len(cost), ref.chars_per_call)
@@ -300,58 +327,80 @@ def _agreement(cost, ok, ref: Row | None) -> str:
 
 
 def _swing_table(config, sz: OCSizes, name: str) -> Table:
-    prob = getattr(problems, name)() if sz.swing_T is None else getattr(problems, name)(T=sz.swing_T)
+    prob = swing_problem(name, sz.swing_T)
     T, ai, max_steps = prob.horizon, ANGLE_INDEX[name], SWING_MAX_STEPS[name]
     batches = config.batches_for(sz.swing_batches)
     big = max(batches)
     x0s = initial_states(name, big)
-    croc = sel(f"{_CROC} SolverDDP", exact=True)
+    peers = _SWING_PEERS[name]
+    reference = f"{_CROC} {peers[0]}"  # the accuracy column's; the targets take it or its (1 thread) twin, the faster
+    croc, either = sel(reference, exact=True), sel(reference)
+    pinned = ", the pole torque pinned to 0 by u_lb = u_ub = 0 (hence the box solvers)" if name == "cart_pole" else ""
     table = Table(
         f"oc-{name}", f"Optimal control: batched {name.replace('_', '-')} swing-ups, T = {T}",
-        accuracy_label=f"final costs agreeing with Crocoddyl DDP (≤ {AGREE_RTOL:g} rel.)", description=(
-            f"`solvers.problems.{name}()` (explicit Euler, dt = {float(prob.args['dt']):g}, quadratic cost to upright) "
-            f"from {big} seeded starts ({_STARTS[name]}), zero controls, ≤ {max_steps} iterations, default tolerances. "
-            "jaxanim: `jax.jit(jax.vmap(solve))` over the first `batch` starts, adaptive and `fixed_steps=True` (a "
-            f"scan of {max_steps}; finished problems frozen). Crocoddyl: a Python loop of `solve` over the first "
-            "starts within the row budget (its success counts those only) on Python action models with the same "
-            "dynamics, cost and analytic first derivatives of the dynamics (like jaxanim ilqr; jaxanim ddp also uses "
-            f"second ones). **Success**: status successful and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. Accuracy: how many "
-            f"final costs of the problems both this row and Crocoddyl SolverDDP solved agree to {AGREE_RTOL:g} "
-            "relative (median relative difference; local optima may differ)."),
-        targets=[Target(f"batched DDP on {big} swing-ups ≥ 20x the Crocoddyl SolverDDP loop's throughput (jaxanim "
-                        "ddp: second-order dynamics; Crocoddyl: first-order)", sel("jaxanim ddp", batch=big), 20.0,
-                        versus=croc),
-                 Target(f"like with like, jaxanim ilqr on {big} swing-ups ≥ 20x the Crocoddyl SolverDDP loop (both "
-                        "first-order dynamics)", sel("jaxanim ilqr", batch=big), 20.0, versus=croc)])
+        accuracy_label=f"final costs agreeing with Crocoddyl {peers[0]} (≤ {AGREE_RTOL:g} rel.)", description=(
+            f"`benchmarks.oc.swing_problem('{name}')`: `solvers.problems.{name}()`"
+            + (" with damping 0" if name == "pendulum" else "") + " stepped by semi-implicit Euler (v+ = v + dt a, "
+            f"q+ = q + dt v+, dt = {float(prob.args['dt']):g}; the problems' own explicit Euler has no C++ Crocoddyl "
+            f"counterpart, nor has a damped joint), quadratic cost to upright; from {big} seeded starts "
+            f"({_STARTS[name]}), zero controls, ≤ {max_steps} iterations. jaxanim: `jax.jit(jax.vmap(solve))` over the "
+            f"first `batch` starts, adaptive and `fixed_steps=True` (a scan of {max_steps}; finished problems frozen). "
+            "Crocoddyl: C++ models only (the Pinocchio "
+            "model of `benchmarks.peers.crocoddyl_oc.pinocchio_model`, DifferentialActionModelFreeFwdDynamics + "
+            f"IntegratedActionModelEuler, ResidualModelState / Control costs{pinned}), a Python loop of `solve` over "
+            "the first starts within the row budget (its success counts those only), on Crocoddyl's default OpenMP "
+            "threads over the knots (these tables run before the unicycle's, whose Python model would switch them off "
+            "for the process) and, in the (1 thread) row, on one (OpenMP threads wait for each other at every loop "
+            "over the knots, so a core held by another process slows the default rows). One stopping rule: stop once "
+            "the full step's predicted cost decrease is below "
+            f"{SWING_STOP:g} (jaxanim atol = {SWING_STOP:g}, rtol = 0; Crocoddyl th_stop = {SWING_STOP:g}, set on "
+            "every solver: BoxDDP's default is 5e-5); iterations count backward passes on both sides (Crocoddyl: iter "
+            "+ 1 when it converged; its last one still takes its step). The regularisation schedules are each solver's "
+            "own. Crocoddyl uses first derivatives of the dynamics (like jaxanim ilqr; jaxanim ddp also second ones). "
+            f"**Success**: converged and |θ_T − π| < {UPRIGHT_TOLERANCE} rad. Accuracy: how many final costs of the "
+            f"problems both this row and Crocoddyl {peers[0]} solved agree to {AGREE_RTOL:g} relative (median "
+            "relative difference; local optima may differ)."),
+        targets=[Target(f"batched DDP on {big} swing-ups ≥ 10x the faster Crocoddyl {peers[0]} loop's throughput "
+                        "(jaxanim ddp: second-order dynamics; Crocoddyl: first-order)", sel("jaxanim ddp", batch=big),
+                        10.0, versus=either),
+                 Target(f"like with like, jaxanim ilqr on {big} swing-ups ≥ 10x the faster Crocoddyl {peers[0]} loop "
+                        "(both first-order dynamics)", sel("jaxanim ilqr", batch=big), 10.0, versus=either)])
     run = Runner(config, table)
 
-    def croc_row(solver: str) -> Row:
-        pb = co.python_problem(name, prob.args, x0s[0], T)
+    def croc_row(impl: str, solver: str, one_thread: bool) -> Row:
+        pb = co.swing_problem(name, prob.args, x0s[0], T)
+        if one_thread:
+            pb.nthreads = 1
         s = getattr(co.load_crocoddyl(), solver)(pb)
-        us0 = [np.zeros(prob.us_init.shape[1])] * T
+        s.th_stop = SWING_STOP
+        us0 = [np.zeros(pb.runningModels[0].nu)] * T
         limit, solved, t0 = min(big, config.loop_cap), [], time.perf_counter()
-        for x0 in x0s[:limit]:  # (cost, converged, iterations, final angle, seconds) per start
+        for x0 in x0s[:limit]:  # (cost, converged, backward passes, final angle, seconds) per start
             t1, pb.x0 = time.perf_counter(), x0
-            ok = s.solve(pb.rollout(us0), us0, max_steps, True, 1e-9)
-            solved.append((float(s.cost), bool(ok), int(s.iter), float(s.xs[-1][ai]), time.perf_counter() - t1))
+            ok = s.solve(pb.rollout(us0), us0, max_steps, True)
+            solved.append((float(s.cost), bool(ok), min(int(s.iter) + 1, max_steps), float(s.xs[-1][ai]),
+                           time.perf_counter() - t1))
             if time.perf_counter() - t0 > config.max_row_s and len(solved) >= 2:
                 break
         total = time.perf_counter() - t0
         cost, conv, its, angle, secs = (np.asarray(c) for c in zip(*solved))
-        k = len(cost)
+        k, per_it = len(cost), secs / its
         success = conv & (np.abs(angle - np.pi) < UPRIGHT_TOLERANCE)
-        p10, p50, pmax = np.percentile(secs / np.maximum(its, 1), [10, 50, 100])
+        spread = lambda z: " / ".join(format_seconds(v) for v in np.percentile(z, [0, 50, 100]))  # noqa: E731
+        threads = f"{pb.nthreads} thread" + ("s" if pb.nthreads > 1 else "")
         ref = next((r for r in table.rows if croc(r) and r.measured), None)
-        return run.row(f"{_CROC} {solver}", "float64", big, Timing(total, None, 1), k,
-                       accuracy="reference" if solver == "SolverDDP" else _agreement(cost, conv, ref),
-                       success=float(success.mean()), extra=dict(cost=cost, conv=conv), note=(
-                           f"iterations {its.mean():.1f} / {its.max()}, mean cost {cost.mean():.6g}; Python loop over "
-                           f"the first {k} of {big} starts (one timed pass{', time budget' if k < limit else ''}); "
-                           "time per iteration p10 / median / max over problems "
-                           f"{format_seconds(p10)} / {format_seconds(p50)} / {format_seconds(pmax)}"))
+        return run.row(impl, "float64", big, Timing(total, None, 1), k,
+                       accuracy="reference" if impl == reference else _agreement(cost, conv, ref),
+                       success=float(success.mean()),
+                       extra=dict(cost=cost, conv=conv, fastest=per_it.min(), slowest=per_it.max()), note=(
+                           f"iterations {its.mean():.1f} / {its.max()}, mean cost {cost.mean():.6g}; C++ models, "
+                           f"Python loop over the first {k} of {big} starts (one timed pass"
+                           f"{', time budget' if k < limit else ''}, {threads}); min / median / max over problems: "
+                           f"per solve {spread(secs)}, per iteration {spread(per_it)}"))
 
-    for solver in ("SolverDDP", "SolverFDDP"):
-        run.add(f"{_CROC} {solver}", "float64", big, lambda: croc_row(solver), peer=True)
+    for solver, one_thread in ((peers[0], False), (peers[0], True), (peers[1], False)):
+        impl = f"{_CROC} {solver}" + (" (1 thread)" if one_thread else "")
+        run.add(impl, "float64", big, lambda: croc_row(impl, solver, one_thread), peer=True)
     ref = next((r for r in table.rows if croc(r) and r.measured), None)
 
     def upright(out) -> np.ndarray:
@@ -363,13 +412,15 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
             for fixed in (False, True) if sz.swing_fixed else (False,):
                 impl = f"jaxanim {method}" + (f" (fixed {max_steps})" if fixed else "")
                 note = f"solvers.{method}, " + (f"fixed_steps (scan of {max_steps})" if fixed else "while_loop")
-                one = jax.vmap(_solve(prob, method, max_steps=max_steps, fixed_steps=fixed), in_axes=(0, 0, None))
+                one = jax.vmap(_solve(prob, method, max_steps=max_steps, fixed_steps=fixed, atol=SWING_STOP, rtol=0.0),
+                               in_axes=(0, 0, None))
                 run.add(impl, "float64", b, lambda: _jax_solve(run, impl, one, args, b, lambda out: _agreement(
                     np.asarray(out.cost), _ok(out.result), ref), note, upright))
-    for r in table.rows if ref is not None else ():  # success on the starts Crocoddyl SolverDDP ran (like with like)
+    for r in table.rows if ref is not None else ():  # success on the starts Crocoddyl's reference ran (like with like)
         if "ok" in r.extra:
             k = min(r.batch, ref.chars_per_call)
             r.note += f"; success on Crocoddyl's first {k} starts {100 * r.extra['ok'][:k].mean():.1f} %"
+    _note_wide_spread(table, "time per iteration over the problems", "as measured (a slow mode, in its row time).")
     return table
 
 
@@ -393,10 +444,11 @@ def run_oc(config, sizes: OCSizes | None = None, tables: Sequence[str] = TABLES)
         raise ValueError(f"tables: unknown {sorted(unknown)}; expected some of {TABLES}")
     sz = sizes or OCSizes()
     config.float64_only("oc", "Crocoddyl and scipy are float64")
+    # the swing-ups run first: once a Python action model exists (the unicycle table's), Crocoddyl runs every
+    # problem of the process on one thread; the tables keep their order
+    swing = [_swing_table(config, sz, name) for name in sz.swing_problems] if "swing_up" in tables else []
     out = [make(config, sz) for key, make in (("unicycle", _unicycle_table), ("lqr", _lqr_table),
-                                              ("dare", _dare_table)) if key in tables]
-    if "swing_up" in tables:
-        out += [_swing_table(config, sz, name) for name in sz.swing_problems]
+                                              ("dare", _dare_table)) if key in tables] + swing
     if "compile" in tables and any(r.compile_s for t in out for r in t.rows):
         out.append(_compile_table(out))
     return out

@@ -1,5 +1,6 @@
-"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR`` and Python
-action models of :mod:`solvers.problems` (with all that Crocoddyl's DDP solvers use: see :func:`python_model_class`)."""
+"""Crocoddyl 3.2.1 as the peer of the ``oc`` benchmark: C++ ``ActionModelUnicycle`` / ``ActionModelLQR``, the swing-ups
+as Pinocchio models under Crocoddyl's C++ free forward dynamics (:func:`swing_problem`), and the unicycle as a Python
+action model (:func:`python_model_class`, to show what a Python model costs)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import numpy as np
 
 from . import PeerUnavailable, require
 
-__all__ = ["load_crocoddyl", "lqr_problem", "python_model_class", "python_problem", "unicycle_problem"]
+__all__ = ["load_crocoddyl", "lqr_problem", "pinocchio_model", "python_model_class", "python_problem", "swing_problem",
+           "unicycle_problem"]
 
 
 def load_crocoddyl():
@@ -23,9 +25,10 @@ def load_crocoddyl():
 
 
 def python_model_class(name: str) -> type:
-    """The Python action-model class ``name`` (``"pendulum"``, ``"cart_pole"``, ``"unicycle"``): explicit Euler,
+    """The Python action-model class ``name`` (only ``"unicycle"``: Crocoddyl's unicycle): explicit Euler,
     quadratic cost, exact cost derivatives and first derivatives ``Fx, Fu`` of the dynamics; ``cls(args,
-    terminal=False)`` takes :mod:`solvers.problems`' ``args`` (a terminal model uses ``QT``, no ``u``)."""
+    terminal=False)`` takes :mod:`solvers.problems`' ``args`` (a terminal model uses ``QT``, no ``u``). Once one is
+    built, Crocoddyl runs every later ``ShootingProblem`` of the process on one thread."""
     return _classes()[name]
 
 
@@ -63,62 +66,6 @@ def _classes() -> dict[str, type]:
             data.Lu = self.Rw * u
             data.Luu = self._Luu
 
-    class PendulumModel(_Quadratic):
-        """:func:`solvers.problems.pendulum`: ``m l^2 theta'' = u - b theta' - m g l sin(theta)``."""
-
-        nx, nu_ = 2, 1
-
-        def __init__(self, args, terminal=False):
-            super().__init__(args, terminal)
-            a = self.a
-            self.ml2, self.mgl, self.b = (float(a["mass"] * a["length"] ** 2),
-                                          float(a["mass"] * a["gravity"] * a["length"]), float(a["damping"]))
-
-        def xdot(self, x, u):
-            th, om = x
-            return np.array([om, (u[0] - self.b * om - self.mgl * np.sin(th)) / self.ml2])
-
-        def jac(self, x, u):
-            fx = np.array([[0.0, 1.0], [-self.mgl * np.cos(x[0]) / self.ml2, -self.b / self.ml2]])
-            return fx, np.array([[0.0], [1.0 / self.ml2]])
-
-    class CartPoleModel(_Quadratic):
-        """:func:`solvers.problems.cart_pole` (Tedrake's cart-pole, ``theta = 0`` hanging down)."""
-
-        nx, nu_ = 4, 1
-
-        def __init__(self, args, terminal=False):
-            super().__init__(args, terminal)
-            self.mc, self.mp, self.l, self.g = (float(self.a[k]) for k in ("cart_mass", "pole_mass", "pole_length",
-                                                                            "gravity"))
-
-        def xdot(self, x, u):
-            _, th, v, om = x
-            mc, mp, l, g = self.mc, self.mp, self.l, self.g
-            s, c, f = np.sin(th), np.cos(th), u[0]
-            den = mc + mp * s * s
-            return np.array([v, om, (f + mp * s * (l * om * om + g * c)) / den,
-                             (-f * c - mp * l * om * om * c * s - (mc + mp) * g * s) / (l * den)])
-
-        def jac(self, x, u):
-            _, th, _, om = x
-            mc, mp, l, g = self.mc, self.mp, self.l, self.g
-            s, c, f = np.sin(th), np.cos(th), u[0]
-            den, dden = mc + mp * s * s, 2.0 * mp * s * c
-            na = f + mp * s * (l * om * om + g * c)
-            na_th = mp * (c * (l * om * om + g * c) - g * s * s)
-            na_om = 2.0 * mp * s * l * om
-            nb = -f * c - mp * l * om * om * c * s - (mc + mp) * g * s
-            nb_th = f * s - mp * l * om * om * (c * c - s * s) - (mc + mp) * g * c
-            nb_om = -2.0 * mp * l * om * c * s
-            fx = np.zeros((4, 4))
-            fx[0, 2] = fx[1, 3] = 1.0
-            fx[2, 1] = (na_th * den - na * dden) / (den * den)
-            fx[2, 3] = na_om / den
-            fx[3, 1] = (nb_th * den - nb * dden) / (l * den * den)
-            fx[3, 3] = nb_om / (l * den)
-            return fx, np.array([[0.0], [0.0], [1.0 / den], [-c / (l * den)]])
-
     class UnicycleModel(_Quadratic):
         """Crocoddyl's ``ActionModelUnicycle`` in Python (as :func:`solvers.problems.unicycle`)."""
 
@@ -132,7 +79,7 @@ def _classes() -> dict[str, type]:
             return (np.array([[0.0, 0.0, -s * u[0]], [0.0, 0.0, c * u[0]], [0.0, 0.0, 0.0]]),
                     np.array([[c, 0.0], [s, 0.0], [0.0, 1.0]]))
 
-    return {"pendulum": PendulumModel, "cart_pole": CartPoleModel, "unicycle": UnicycleModel}
+    return {"unicycle": UnicycleModel}
 
 
 def _shooting(croc, x0, running, terminal, T: int, bounds=None):
@@ -165,3 +112,67 @@ def python_problem(name: str, args: dict[str, Any], x0, T: int):
     """A ``ShootingProblem`` of ``T`` knots of the Python model ``name`` with a ``ControlProblem``'s ``args``."""
     cls = python_model_class(name)  # its models take the args as float64 numpy
     return _shooting(load_crocoddyl(), x0, cls(args), cls(args, terminal=True), T)
+
+
+def pinocchio_model(name: str, args: dict[str, Any]):
+    """The ``pinocchio.Model`` of :func:`solvers.problems.pendulum` (``"pendulum"``: a point mass ``mass`` at
+    ``length`` below a revolute x joint) or :func:`~solvers.problems.cart_pole` (``"cart_pole"``: a point-mass cart
+    on a prismatic y joint carrying a point-mass pole of ``pole_length`` on a revolute x joint), ``theta = 0``
+    hanging down (then ``+theta`` swings the mass to ``+y``, as ``+x`` in the problems), gravity ``-gravity e_z``.
+
+    Raises ``ValueError`` for a damped pendulum: Pinocchio's ABA and Crocoddyl's free forward dynamics have no
+    viscous joint damping (``model.damping`` is not used by ``pinocchio.aba``).
+    """
+    pin = require("pinocchio", "pip install pin==4.0.0")
+    a = {k: np.asarray(v, dtype=np.float64) for k, v in args.items()}
+    if name == "pendulum" and float(a["damping"]) != 0.0:
+        raise ValueError(f"damping: Crocoddyl's free forward dynamics has none; expected 0, got {float(a['damping'])}")
+    model = pin.Model()
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -float(a["gravity"])]), np.zeros(3))
+
+    def body(parent: int, joint, label: str, mass, drop) -> int:  # a point mass ``drop`` below the joint
+        j = model.addJoint(parent, joint, pin.SE3.Identity(), label)
+        model.appendBodyToJoint(j, pin.Inertia(float(mass), np.array([0.0, 0.0, -float(drop)]), np.zeros((3, 3))),
+                                pin.SE3.Identity())
+        return j
+
+    if name == "pendulum":
+        body(0, pin.JointModelRX(), "pole", a["mass"], a["length"])
+    elif name == "cart_pole":
+        body(body(0, pin.JointModelPY(), "cart", a["cart_mass"], 0.0), pin.JointModelRX(), "pole", a["pole_mass"],
+             a["pole_length"])
+    else:
+        raise ValueError(f"name: expected 'pendulum' or 'cart_pole', got {name!r}")
+    return model
+
+
+def swing_problem(name: str, args: dict[str, Any], x0, T: int):
+    """A ``ShootingProblem`` of ``T`` C++ knots for a swing-up of :func:`pinocchio_model` with a ``ControlProblem``'s
+    ``args``: ``DifferentialActionModelFreeFwdDynamics`` (ABA, ``ActuationModelFull``) under
+    ``IntegratedActionModelEuler`` (semi-implicit: ``v+ = v + dt a``, ``q+ = q + dt v+``), cost ``CostModelSum`` of
+    ``ResidualModelState`` (to ``goal``) and ``ResidualModelControl`` with ``ActivationModelWeightedQuad`` weights
+    ``Q / dt`` and ``R / dt`` (the integrator multiplies by ``dt``), terminal ``QT``.
+
+    The cart-pole's pole joint gets a torque too (Crocoddyl's C++ actuation models leave only a *first* joint
+    unactuated): it is pinned to 0 by ``u_lb = u_ub = 0``, which the box solvers (``SolverBoxDDP`` / ``BoxFDDP``)
+    enforce exactly, so ``u = [force, 0]``.
+    """
+    croc, pin_model = load_crocoddyl(), pinocchio_model(name, args)
+    a = {k: np.asarray(v, dtype=np.float64) for k, v in args.items()}
+    state = croc.StateMultibody(pin_model)
+    actuation = croc.ActuationModelFull(state)
+    nu, dt = actuation.nu, float(a["dt"])
+
+    def differential(state_weights, control_weight=None):
+        costs = croc.CostModelSum(state, nu)
+        costs.addCost("state", croc.CostModelResidual(state, croc.ActivationModelWeightedQuad(state_weights),
+                                                      croc.ResidualModelState(state, a["goal"], nu)), 1.0)
+        if control_weight is not None:
+            costs.addCost("control", croc.CostModelResidual(state, croc.ActivationModelWeightedQuad(
+                np.full(nu, control_weight)), croc.ResidualModelControl(state, nu)), 1.0)
+        return croc.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+
+    running = croc.IntegratedActionModelEuler(differential(a["Q"] / dt, float(a["R"][0]) / dt), dt)
+    terminal = croc.IntegratedActionModelEuler(differential(a["QT"]), 0.0)
+    pinned = (np.r_[-np.inf, 0.0], np.r_[np.inf, 0.0]) if name == "cart_pole" else None
+    return _shooting(croc, x0, running, terminal, T, pinned)
