@@ -105,14 +105,20 @@ def _compacted(n, lanes, x0, consts, batched, flags, cond_of, body_of, nc):
     in ``batched`` (their rows are gathered per lane), the others shared."""
     axes = tuple(_axes(f) for f in flags)
 
-    def lane_consts(idx):
-        return tuple(_take(c, idx) if i in batched else c for i, c in enumerate(consts))
+    def lane_consts(idx):  # the batched constants' rows for the lanes (the shared ones stay out of the carry)
+        return tuple(_take(consts[i], idx) for i in batched)
 
-    def running(x, cs):  # [lanes] bool: the lane's problem is not finished
-        return jax.vmap(lambda x, *c: cond_of(x, *c[:nc]), in_axes=(0, *axes))(x, *cs)
+    def full(bcs):  # every constant, the batched ones replaced by their lane rows
+        out = list(consts)
+        for i, c in zip(batched, bcs):
+            out[i] = c
+        return out
 
-    def step(x, cs):
-        return jax.vmap(lambda x, *c: body_of(x, *c[nc:]), in_axes=(0, *axes))(x, *cs)
+    def running(x, bcs):  # [lanes] bool: the lane's problem is not finished
+        return jax.vmap(lambda x, *c: cond_of(x, *c[:nc]), in_axes=(0, *axes))(x, *full(bcs))
+
+    def step(x, bcs):
+        return jax.vmap(lambda x, *c: body_of(x, *c[nc:]), in_axes=(0, *axes))(x, *full(bcs))
 
     idx0 = jnp.arange(lanes)
     carry0 = (idx0, _take(x0, idx0), lane_consts(idx0), jnp.asarray(lanes), x0)
@@ -121,9 +127,9 @@ def _compacted(n, lanes, x0, consts, batched, flags, cond_of, body_of, nc):
         return jnp.any(c[0] < n)
 
     def outer_body(c):
-        idx, x, cs, nxt, out = c
+        idx, x, bcs, nxt, out = c
         valid = idx < n
-        finished = valid & jnp.invert(running(x, cs))
+        finished = valid & jnp.invert(running(x, bcs))
         # finished lanes write their problem back in place (idle and running lanes write nowhere)
         out = jax.tree.map(lambda o, v: o.at[jnp.where(finished, idx, n)].set(v, mode="drop"), out, x)
         # ... and take the next waiting problems, in input order
@@ -132,10 +138,9 @@ def _compacted(n, lanes, x0, consts, batched, flags, cond_of, body_of, nc):
         nxt = nxt + jnp.sum(finished)
         load = finished & (idx < n)
         x = _select(load, _take(x0, idx), x)
-        cs = tuple(_select(load, c, old) if i in batched else old
-                   for i, (c, old) in enumerate(zip(lane_consts(idx), cs)))
-        active = (idx < n) & running(x, cs)
-        x = _select(active, step(x, cs), x)
-        return idx, x, cs, nxt, out
+        bcs = tuple(_select(load, c, old) for c, old in zip(lane_consts(idx), bcs))
+        active = (idx < n) & running(x, bcs)
+        x = _select(active, step(x, bcs), x)
+        return idx, x, bcs, nxt, out
 
     return jax.lax.while_loop(outer_cond, outer_body, carry0)[-1]
