@@ -89,8 +89,7 @@ def while_loop(cond: Callable[[Any], Any], body: Callable[[Any], Any], init: Any
             out = jax.vmap(loop, in_axes=(_axes(in_batched[0]), *map(_axes, in_batched[1:])))(x0, *consts)
             return out, jax.tree.map(lambda _: True, out)
         x0 = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))), x0, in_batched[0])
-        batched = [i for i, b in enumerate(in_batched[1:]) if any(jax.tree.leaves(b))]
-        return _compacted(axis_size, lanes, x0, consts, batched, in_batched[1:], cond_of, body_of, nc), \
+        return _compacted(axis_size, lanes, x0, consts, in_batched[1:], cond_of, body_of, nc), \
             jax.tree.map(lambda _: True, x0)
 
     return routed(init, *cond_consts, *body_consts)
@@ -100,10 +99,11 @@ def _axes(batched_tree):
     return jax.tree.map(lambda b: 0 if b else None, batched_tree)
 
 
-def _compacted(n, lanes, x0, consts, batched, flags, cond_of, body_of, nc):
-    """The compacted loop over ``n`` problems: ``x0`` batched (all ``n``), ``consts[i]`` batched for ``i``
-    in ``batched`` (their rows are gathered per lane), the others shared."""
+def _compacted(n, lanes, x0, consts, flags, cond_of, body_of, nc):
+    """The compacted loop over ``n`` problems: ``x0`` batched (all ``n``), ``consts[i]`` batched where
+    ``flags[i]`` says so (their rows are gathered per lane), the others shared."""
     axes = tuple(_axes(f) for f in flags)
+    batched = [i for i, f in enumerate(flags) if any(jax.tree.leaves(f))]
 
     def lane_consts(idx):  # the batched constants' rows for the lanes (the shared ones stay out of the carry)
         return tuple(_take(consts[i], idx) for i in batched)
