@@ -25,6 +25,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = ["LANES", "hoist_closure", "while_loop"]
 
@@ -99,48 +100,76 @@ def _axes(batched_tree):
     return jax.tree.map(lambda b: 0 if b else None, batched_tree)
 
 
+class _Packing:
+    """The leaves of a batched pytree (leading axis: the problems) packed into one ``[rows, width]``
+    array per dtype, and back. The compacted loop gathers, selects and scatters whole lane states:
+    on packed states that is a few ops instead of a few per leaf (XLA:CPU compiles every op of
+    the loop into a kernel of its own, so each leaf cost compile time)."""
+
+    def __init__(self, tree):
+        leaves, self.treedef = jax.tree.flatten(tree)
+        self.dtypes = sorted({jnp.result_type(x) for x in leaves}, key=str)
+        self.slots, width = [], {d: 0 for d in self.dtypes}
+        for x in leaves:
+            d, size = jnp.result_type(x), int(np.prod(jnp.shape(x)[1:], dtype=np.int64))
+            self.slots.append((d, width[d], size, jnp.shape(x)[1:]))
+            width[d] += size
+
+    def pack(self, tree) -> tuple:
+        leaves = jax.tree.leaves(tree)
+        rows = jnp.shape(leaves[0])[0] if leaves else 0
+        groups = {d: [] for d in self.dtypes}
+        for x, (d, _, size, _) in zip(leaves, self.slots):
+            groups[d].append(jnp.reshape(x, (rows, size)))
+        return tuple(g[0] if len(g) == 1 else jnp.concatenate(g, axis=1) for g in groups.values())
+
+    def unpack(self, packed) -> Any:
+        by = dict(zip(self.dtypes, packed))
+        leaves = [jnp.reshape(by[d][..., o:o + size], by[d].shape[:-1] + shape) for d, o, size, shape in self.slots]
+        return jax.tree.unflatten(self.treedef, leaves)
+
+
 def _compacted(n, lanes, x0, consts, flags, cond_of, body_of, nc):
     """The compacted loop over ``n`` problems: ``x0`` batched (all ``n``), ``consts[i]`` batched where
     ``flags[i]`` says so (their rows are gathered per lane), the others shared."""
     axes = tuple(_axes(f) for f in flags)
     batched = [i for i, f in enumerate(flags) if any(jax.tree.leaves(f))]
+    xs, cs = _Packing(x0), _Packing(tuple(consts[i] for i in batched))
+    X0, C = xs.pack(x0), cs.pack(tuple(consts[i] for i in batched))
 
-    def lane_consts(idx):  # the batched constants' rows for the lanes (the shared ones stay out of the carry)
-        return tuple(_take(consts[i], idx) for i in batched)
-
-    def full(bcs):  # every constant, the batched ones replaced by their lane rows
+    def full(lc):  # every constant, the batched ones replaced by their lane rows
         out = list(consts)
-        for i, c in zip(batched, bcs):
+        for i, c in zip(batched, cs.unpack(lc)):
             out[i] = c
         return out
 
-    def running(x, bcs):  # [lanes] bool: the lane's problem is not finished
-        return jax.vmap(lambda x, *c: cond_of(x, *c[:nc]), in_axes=(0, *axes))(x, *full(bcs))
+    def running(X, lc):  # [lanes] bool: the lane's problem is not finished
+        return jax.vmap(lambda x, *c: cond_of(x, *c[:nc]), in_axes=(0, *axes))(xs.unpack(X), *full(lc))
 
-    def step(x, bcs):
-        return jax.vmap(lambda x, *c: body_of(x, *c[nc:]), in_axes=(0, *axes))(x, *full(bcs))
+    def step(X, lc):
+        return xs.pack(jax.vmap(lambda x, *c: body_of(x, *c[nc:]), in_axes=(0, *axes))(xs.unpack(X), *full(lc)))
 
     idx0 = jnp.arange(lanes)
-    carry0 = (idx0, _take(x0, idx0), lane_consts(idx0), jnp.asarray(lanes), x0)
+    carry0 = (idx0, _take(X0, idx0), _take(C, idx0), jnp.asarray(lanes), X0)
 
     def outer_cond(c):
         return jnp.any(c[0] < n)
 
     def outer_body(c):
-        idx, x, bcs, nxt, out = c
+        idx, X, lc, nxt, out = c
         valid = idx < n
-        finished = valid & jnp.invert(running(x, bcs))
+        finished = valid & jnp.invert(running(X, lc))
         # finished lanes write their problem back in place (idle and running lanes write nowhere)
-        out = jax.tree.map(lambda o, v: o.at[jnp.where(finished, idx, n)].set(v, mode="drop"), out, x)
+        out = jax.tree.map(lambda o, v: o.at[jnp.where(finished, idx, n)].set(v, mode="drop"), out, X)
         # ... and take the next waiting problems, in input order
         new = nxt + jnp.cumsum(finished) - 1
         idx = jnp.where(finished, jnp.where(new < n, new, n), idx)
         nxt = nxt + jnp.sum(finished)
         load = finished & (idx < n)
-        x = _select(load, _take(x0, idx), x)
-        bcs = tuple(_select(load, c, old) for c, old in zip(lane_consts(idx), bcs))
-        active = (idx < n) & running(x, bcs)
-        x = _select(active, step(x, bcs), x)
-        return idx, x, bcs, nxt, out
+        X = _select(load, _take(X0, idx), X)
+        lc = _select(load, _take(C, idx), lc)
+        active = (idx < n) & running(X, lc)
+        X = _select(active, step(X, lc), X)
+        return idx, X, lc, nxt, out
 
-    return jax.lax.while_loop(outer_cond, outer_body, carry0)[-1]
+    return xs.unpack(jax.lax.while_loop(outer_cond, outer_body, carry0)[-1])

@@ -245,21 +245,39 @@ def _variable_jacobian(skeleton, layout, out, E, p_world_pin, dtype):
 
 
 def _target_rows(layout, targets, p_world_sites, R_world_sites, J_vars, shift, dtype):
-    """Residual blocks ``sqrt(w) (p - p_target)`` and ``sqrt(w) log(R R_target^T)`` with their rows."""
+    """Residual blocks ``sqrt(w) (p - p_target)`` and ``sqrt(w) log(R R_target^T)`` with their rows,
+    in target order (each target's position block, then its orientation block).
+
+    The blocks of all position targets, and of all orientation targets, are computed as one
+    stacked array each (one traced rotation log for every target, not one per target: the
+    compiled program stays small), then put in target order by a static gather.
+    """
+    n = J_vars.shape[-1]
+    pos = [i for i, t in enumerate(targets) if t.position is not None]
+    ori = [i for i, t in enumerate(targets) if t.orientation is not None]
+    sqrt_w = jnp.sqrt(jnp.stack([jnp.asarray(t.weight, dtype) for t in targets]))  # [targets]
     res, rows = [], []
-    for i, tgt in enumerate(targets):
-        sqrt_w = jnp.sqrt(jnp.asarray(tgt.weight, dtype))
-        if tgt.position is not None:
-            p_world = p_world_sites[layout.site_idx[i]] + shift
-            res.append(sqrt_w * (p_world - tgt.position.astype(dtype)))
-            rows.append(sqrt_w * J_vars[i, :3])
-        if tgt.orientation is not None:
-            R_world_target = rot.quat_to_matrix(tgt.orientation.astype(dtype))
-            e = rot.matrix_to_rotvec(R_world_sites[i] @ R_world_target.T)
-            res.append(sqrt_w * e)
-            Li = _left_jacobian_inverse(e)
-            rows.append(sqrt_w * sum(Li[:, c, None] * J_vars[i, 3 + c][None, :] for c in range(3)))  # Li @ J_ang
-    return res, rows
+    if pos:
+        ip = np.asarray(pos)
+        goal = jnp.stack([targets[i].position.astype(dtype) for i in pos])  # [kp, 3]
+        p_world = p_world_sites[np.asarray([layout.site_idx[i] for i in pos])] + shift[None]
+        res.append(sqrt_w[ip, None] * (p_world - goal))
+        rows.append(sqrt_w[ip, None, None] * J_vars[ip, :3])
+    if ori:
+        io = np.asarray(ori)
+        R_goal = rot.quat_to_matrix(jnp.stack([targets[i].orientation.astype(dtype) for i in ori]))  # [ko, 3, 3]
+        R_site = R_world_sites[io]
+        # R_site @ R_goal^T, written elementwise (a batch of 3x3 dots is slow under vmap on XLA:CPU)
+        e = rot.matrix_to_rotvec(sum(R_site[..., :, c, None] * R_goal[..., None, :, c] for c in range(3)))
+        Li = _left_jacobian_inverse(e)  # [ko, 3, 3]
+        J_ang = J_vars[io, 3:]  # [ko, 3, n]
+        res.append(sqrt_w[io, None] * e)
+        rows.append(sqrt_w[io, None, None] * sum(Li[:, :, c, None] * J_ang[:, c, None, :] for c in range(3)))
+    order, kp = [], len(pos)
+    for i in range(len(targets)):
+        order += ([pos.index(i)] if i in pos else []) + ([kp + ori.index(i)] if i in ori else [])
+    order = np.asarray(order)
+    return [jnp.concatenate(res)[order].reshape(-1)], [jnp.concatenate(rows)[order].reshape(-1, n)]
 
 
 def _regularization_rows(layout, blocks, q, q_ref, E, reg_w, n, dtype):

@@ -208,13 +208,7 @@ def _solve(skeleton, layout, targets, q0, translations, reference, options: IKOp
     out = forward_kinematics(skeleton, q, t)
     p_world_sites = out.site_positions()
     R_world_sites = _site_rotations(skeleton, out, layout.site_idx)
-    pe, oe = [], []
-    for i, tgt in enumerate(targets):
-        pe.append(jnp.linalg.norm(p_world_sites[layout.site_idx[i]] - tgt.position) if tgt.position is not None
-                  else jnp.zeros((), dtype))
-        oe.append(rot.quat_distance(rot.matrix_to_quat(R_world_sites[i]), tgt.orientation.astype(dtype))
-                  if tgt.orientation is not None else jnp.zeros((), dtype))
-    pe, oe = jnp.stack(pe), jnp.stack(oe)
+    pe, oe = _target_errors(layout, targets, p_world_sites, R_world_sites, dtype)
     success = ((sol.result == solvers.RESULTS.successful) & jnp.all(pe <= data.position_tolerance)
                & jnp.all(oe <= data.orientation_tolerance))
     return IKSolution(rot.quat_canonical(q), t, sol.result, sol.stats, pe, oe, success)
@@ -302,6 +296,23 @@ def solve_ik(
     layout, targets, q0 = _check_problem(skeleton, targets, rotations, translations, reference, options)
     options = _skeleton_defaults(skeleton, options)
     return _solve(skeleton, layout, targets, q0, translations, reference, options)
+
+
+def _target_errors(layout, targets, p_world_sites, R_world_sites, dtype):
+    """``(position errors [targets], orientation errors [targets])`` (zero where a target has none),
+    each kind computed for all its targets at once (one traced rotation conversion, not one per target)."""
+    k = len(targets)
+    pe, oe = jnp.zeros((k,), dtype), jnp.zeros((k,), dtype)
+    pos = np.asarray([i for i, t in enumerate(targets) if t.position is not None], dtype=np.int32)
+    ori = np.asarray([i for i, t in enumerate(targets) if t.orientation is not None], dtype=np.int32)
+    if pos.size:
+        goal = jnp.stack([targets[i].position.astype(dtype) for i in pos])
+        p = p_world_sites[np.asarray([layout.site_idx[i] for i in pos])]
+        pe = pe.at[pos].set(jnp.linalg.norm(p - goal, axis=-1))
+    if ori.size:
+        goal = jnp.stack([targets[i].orientation.astype(dtype) for i in ori])
+        oe = oe.at[ori].set(rot.quat_distance(rot.matrix_to_quat(R_world_sites[ori]), goal))
+    return pe, oe
 
 
 @eqx.filter_jit
