@@ -209,7 +209,9 @@ _METHODS = (
      "until converged; finished problems are frozen)", False, None),
     ("optimistix LM", lambda d, p: _ik(solvers.OptimistixSolver(optx.LevenbergMarquardt(**_tol(d)),
                                                                 max_steps=MAX_STEPS), p),
-     f"OptimistixSolver(optx.LevenbergMarquardt), ≤ {MAX_STEPS} steps, {_TOL}", True, _SLOW_MAX_BATCH),
+     f"OptimistixSolver(optx.LevenbergMarquardt), ≤ {MAX_STEPS} steps, {_TOL}; its damped step is a dense QR "
+     "(lineax's default) of the stacked (m + n) x n matrix [J; √λ I] each step, where own LM solves an m x m "
+     "system (m = 30 < n = 96)", True, _SLOW_MAX_BATCH),
     ("optimistix GN", lambda d, p: _ik(solvers.OptimistixSolver(optx.GaussNewton(**_tol(d)), max_steps=MAX_STEPS), p),
      f"OptimistixSolver(optx.GaussNewton) (default linear solver), ≤ {MAX_STEPS} steps, {_TOL}", True,
      _SLOW_MAX_BATCH),

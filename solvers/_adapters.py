@@ -129,6 +129,8 @@ def _optx_primal(inputs):
         c.result,
     )
     y, _, _ = solver.postprocess(fn, c.y, None, args, options, state, tags, result)
+    # the iterate that met the user's stop, even where postprocess returns another (optx.BestSoFarLeastSquares)
+    y = jnp.where(c.user, c.y, y)
     y_eval = getattr(state, "y_eval", None)
     step = jnp.zeros_like(y) if y_eval is None else y_eval - y
     damping = jnp.zeros((), y.dtype)

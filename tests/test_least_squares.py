@@ -868,6 +868,22 @@ def test_adapters_stop_vmap_equals_loop_on_lanes(solver):
         assert_close(f"value[{i}]", batched.value[i], single.value, atol=1e-12)
 
 
+def test_optimistix_best_so_far_returns_the_iterate_meeting_stop():
+    """``optx.BestSoFarLeastSquares`` postprocesses to its best point so far; a solve ended by the
+    user's stop returns the iterate that met it (and, without stop, what optimistix returns)."""
+    p = PROBLEMS["rosenbrock"]
+    y0 = jnp.asarray(p.y0)
+    inner = optx.BestSoFarLeastSquares(optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12))
+    solver = OptimistixSolver(inner, max_steps=256)
+    plain = least_squares(_rosenbrock_args, solver, y0, jnp.asarray(1e-3))
+    ref = optx.least_squares(p.fn, inner, y0, max_steps=256, throw=False)
+    assert int(plain.stats["num_steps"]) == int(ref.stats["num_steps"])
+    assert_close("value", plain.value, ref.value, atol=1e-14)
+    sol = least_squares(_rosenbrock_args, solver, y0, jnp.asarray(1e-3), stop=_cost_at_most)
+    assert sol.result == RESULTS.successful and float(sol.stats["cost"]) <= 1e-3
+    assert int(sol.stats["num_steps"]) < int(plain.stats["num_steps"])
+
+
 def test_optimistix_adapter_keeps_implicit_derivatives():
     """The adapter runs under ``optx.ImplicitAdjoint`` as ``optx.least_squares`` does: the derivative
     of a linear least-squares solution with respect to the data is the pseudo-inverse."""
