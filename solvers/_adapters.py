@@ -5,11 +5,13 @@ import warnings
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from equinox import AbstractVar
-from jaxtyping import Array, Float, Int, PyTree
+from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from ._checks import _all_finite, _check_int
+from ._iterate import iterate
 from ._ls_problem import _Problem
 from ._results import RESULTS, Solution
 
@@ -63,21 +65,110 @@ def _adapter_solution(
     return Solution(value=value, result=result, stats=stats)
 
 
+class _OptxLoop(eqx.Module):
+    """The driver's state for an optimistix solve: optimistix's ``_iterate`` carry, plus the user's stop."""
+
+    y: Float[Array, " n"]
+    state: PyTree  # the array part of the optimistix solver state (its static part is closed over)
+    terminate: Bool[Array, ""]  # optimistix's terminate
+    result: Any  # optimistix's RESULTS
+    user: Bool[Array, ""]  # the user's stop holds at y
+
+
+def _optx_primal(inputs):
+    """optimistix's ``_iterate`` (``optimistix/_iterate.py``, 0.1.0) on :func:`solvers._iterate.iterate`.
+
+    The same ``init``/``step``/``terminate``/``postprocess`` calls in the same order, so without
+    ``stop`` the iterates are optimistix's; ``stop(y, r, args)`` (closure-converted) ends the solve
+    too. Module-level and free of closures, as ``optx.ImplicitAdjoint`` requires.
+    """
+    import optimistix as optx
+    from optimistix._misc import tree_allfinite
+    from optimistix._solver.gauss_newton import _GaussNewtonState
+
+    fn, solver, y0, args, options, max_steps, f_struct, aux_struct, tags, stop, _while_loop = inputs
+    f_struct, aux_struct = f_struct.value, aux_struct.value
+    state0 = solver.init(fn, y0, args, options, f_struct, aux_struct, tags)
+    dynamic0, static = eqx.partition(state0, eqx.is_array)
+
+    def terminate(y, state):  # optimistix checks the iterate the step started from
+        t, result = solver.terminate(fn, y, args, options, state, tags)
+        return t, optx.RESULTS.where(tree_allfinite(y), result, optx.RESULTS.nonfinite)
+
+    def user_stop(y, state):
+        if stop is None:
+            return jnp.array(False)
+        if isinstance(state, _GaussNewtonState):  # Gauss-Newton, LM, Dogleg: r(y) is in the state
+            r = state.f_info.residual
+        else:
+            r, _ = fn(y, args)
+        return jnp.asarray(stop(y, r, args), bool)
+
+    t0, result0 = terminate(y0, state0)
+    # optimistix's first step only evaluates at y0, so r(y0) is not in the initial state: one evaluation
+    user0 = jnp.array(False) if stop is None else jnp.asarray(stop(y0, fn(y0, args)[0], args), bool)
+    init = _OptxLoop(y=y0, state=dynamic0, terminate=t0, result=result0, user=user0)
+
+    def step(c: _OptxLoop) -> _OptxLoop:
+        state = eqx.combine(static, c.state)
+        y, new_state, _aux = solver.step(fn, c.y, args, options, state, tags)
+        t, result = terminate(c.y, new_state)
+        return _OptxLoop(
+            y=y, state=eqx.filter(new_state, eqx.is_array), terminate=t, result=result, user=user_stop(y, new_state)
+        )
+
+    def done(c: _OptxLoop):
+        return c.terminate | (c.result != optx.RESULTS.successful) | c.user
+
+    # no non-finite guard: optimistix reports a non-finite iterate itself (`terminate` above)
+    it = iterate(step, init, done=done, max_steps=max_steps, fixed_steps=False, finite=None)
+    c = it.state
+    state = eqx.combine(static, c.state)
+    result = optx.RESULTS.where(
+        (c.result == optx.RESULTS.successful) & jnp.invert(c.terminate), optx.RESULTS.nonlinear_max_steps_reached,
+        c.result,
+    )
+    y, _, _ = solver.postprocess(fn, c.y, None, args, options, state, tags, result)
+    # the iterate that met the user's stop, even where postprocess returns another (optx.BestSoFarLeastSquares)
+    y = jnp.where(c.user, c.y, y)
+    y_eval = getattr(state, "y_eval", None)
+    step = jnp.zeros_like(y) if y_eval is None else y_eval - y
+    damping = jnp.zeros((), y.dtype)
+    if isinstance(solver, optx.LevenbergMarquardt):
+        step_size = getattr(getattr(state, "search_state", None), "step_size", None)
+        if step_size is not None:
+            damping = jnp.asarray(1 / step_size, y.dtype)
+    return y, (it.num_steps, result, c.user, step, damping)
+
+
 class OptimistixSolver(_AbstractAdapter):
     """Adapter for an optimistix least-squares solver (``optx.LevenbergMarquardt``, ``GaussNewton``, ``Dogleg``).
 
     ``least_squares(fn, OptimistixSolver(optx.LevenbergMarquardt(rtol, atol)), y0, jac=jac)`` runs
-    ``optx.least_squares(..., throw=False)`` and returns the same :class:`Solution` as the own
-    solvers (optimistix's state is never returned: it cannot be batched). A user ``jac`` reaches
-    optimistix through a ``jax.custom_jvp`` on the residual, so the analytic Jacobian is used, not
-    autodiff of ``fn``. optimistix results map to :class:`RESULTS` (``nonlinear_max_steps_reached``
-    -> ``max_steps_reached``, non-finite -> ``nonfinite``, any linear-solver failure ->
-    ``singular``). Statistics: ``step_norm`` is the step optimistix would try next, ``damping``
-    is ``1 / trust-region step size`` for ``optx.LevenbergMarquardt`` (0 otherwise), and
-    ``cost_history`` holds the initial cost then the final cost (intermediate costs are not
-    reported by optimistix). Bounds are not supported. Known limitation of optimistix 0.1.0:
-    with ``jax_enable_x64`` on, ``optx.LevenbergMarquardt`` and ``optx.Dogleg`` fail to trace for a
-    float32 ``y0`` (a float64 damping term meets float32 residuals); float32 works with x64 off.
+    the optimistix solver's own ``init`` / ``step`` / ``terminate`` / ``postprocess`` (in the order
+    of ``optx.least_squares``'s loop, under ``optx.ImplicitAdjoint``, so derivatives of the solution
+    are implicit ones as there) on the project's driver :func:`solvers._iterate.iterate`, and returns
+    the same :class:`Solution` as the own solvers (optimistix's state is never returned: it cannot
+    be batched). Without ``stop`` the iterates, ``value`` and ``num_steps`` are those of
+    ``optx.least_squares(..., throw=False)``; under ``jax.vmap`` on the CPU a batch runs on
+    compacted lanes (it costs its mean step count, not its maximum). A user ``stop(y, r, args)``
+    is checked at ``y0`` (one extra evaluation of ``fn``: optimistix's initial state holds no
+    residual) and after every step on the accepted iterate and its residual, which
+    ``GaussNewton``, ``LevenbergMarquardt`` and ``Dogleg`` keep in their state (other optimistix
+    solvers: one evaluation of ``fn`` per step); when it holds the solve ends there as
+    ``successful``. optimistix counts its first step, which only evaluates ``fn`` at ``y0``, in
+    ``num_steps``. A user ``jac`` reaches optimistix through a ``jax.custom_jvp`` on the residual,
+    so the analytic Jacobian is used, not autodiff of ``fn``. optimistix results map to
+    :class:`RESULTS` (``nonlinear_max_steps_reached`` -> ``max_steps_reached``, non-finite ->
+    ``nonfinite``, any linear-solver failure -> ``singular``). Statistics: ``step_norm`` is the step
+    optimistix would try next, ``damping`` is ``1 / trust-region step size`` for
+    ``optx.LevenbergMarquardt`` (0 otherwise), and ``cost_history`` holds the initial cost then the
+    final cost (intermediate costs are not reported by optimistix). Bounds are not supported.
+    Known limitation of optimistix 0.1.0: with ``jax_enable_x64`` on, ``optx.LevenbergMarquardt``
+    and ``optx.Dogleg`` fail to trace for a float32 ``y0`` (a float64 damping term meets float32
+    residuals); float32 works with x64 off. The adapter uses optimistix 0.1.0's internals
+    (``_iterate``'s loop, ``NoneAux``/``OutAsArray``, the Gauss-Newton state), so it follows that
+    version.
 
     Attributes:
         solver: the optimistix solver instance.
@@ -103,15 +194,26 @@ class OptimistixSolver(_AbstractAdapter):
         _check_int("max_steps", self.max_steps, 1)
 
     def _solve(self, problem, y0, args):
+        import equinox.internal as eqxi
         import optimistix as optx
+        from optimistix._least_squares import _rewrite_fn
+        from optimistix._misc import NoneAux, OutAsArray
 
-        fn = problem.custom_jvp_residual()
-        sol = optx.least_squares(
-            fn, self.solver, y0, args, options=dict(self.options or ()), max_steps=self.max_steps, throw=False
+        # what optx.least_squares does before it iterates: the same wrapped, closure-converted fn
+        fn = eqx.filter_closure_convert(OutAsArray(NoneAux(problem.custom_jvp_residual())), y0, args)
+        f_struct, aux_struct = fn.out_struct
+        stop = None
+        if problem.stop is not None:
+            stop = eqx.filter_closure_convert(problem.stop, y0, jnp.zeros(f_struct.shape, f_struct.dtype), args)
+        inputs = (
+            fn, self.solver, y0, args, dict(self.options or ()), self.max_steps,
+            eqxi.Static(f_struct), eqxi.Static(aux_struct), frozenset(), stop,
         )
-        r = sol.result
+        value, (num_steps, r, user, step, damping) = optx.ImplicitAdjoint().apply(
+            _optx_primal, _rewrite_fn, inputs, frozenset()
+        )
         result = RESULTS.where(
-            r == optx.RESULTS.successful,
+            user | (r == optx.RESULTS.successful),
             RESULTS.successful,
             RESULTS.where(
                 r == optx.RESULTS.nonlinear_max_steps_reached,
@@ -123,16 +225,7 @@ class OptimistixSolver(_AbstractAdapter):
                 ),
             ),
         )
-        y_eval = getattr(sol.state, "y_eval", None)
-        step = jnp.zeros_like(y0) if y_eval is None else y_eval - sol.value
-        damping = jnp.zeros((), y0.dtype)
-        if isinstance(self.solver, optx.LevenbergMarquardt):
-            step_size = getattr(getattr(sol.state, "search_state", None), "step_size", None)
-            if step_size is not None:
-                damping = 1 / step_size
-        return _adapter_solution(
-            problem, y0, args, sol.value, result, sol.stats["num_steps"], step, damping, self.max_steps
-        )
+        return _adapter_solution(problem, y0, args, value, result, num_steps, step, damping, self.max_steps)
 
 
 def _import_jaxopt():
@@ -154,17 +247,32 @@ def _import_jaxopt():
 _JAXOPT_NAMES = ("LevenbergMarquardt", "GaussNewton")
 
 
+class _JaxoptLoop(eqx.Module):
+    """The driver's state for a jaxopt solve: jaxopt's ``(params, state)`` and the user's stop."""
+
+    y: Float[Array, " n"]
+    state: Any  # jaxopt's state (a NamedTuple of arrays)
+    user: Bool[Array, ""]  # the user's stop holds at y
+
+
 class JaxoptSolver(_AbstractAdapter):
     """Adapter for ``jaxopt.LevenbergMarquardt`` / ``jaxopt.GaussNewton`` (jaxopt is unmaintained: an extra).
 
     jaxopt is imported lazily when the solver runs. A user ``jac`` reaches jaxopt through the
-    same ``jax.custom_jvp`` residual as for optimistix. Convergence: Levenberg-Marquardt stops when
-    ``|J^T r|_2 <= atol`` (jaxopt's ``'grad-l2-norm'`` criterion, Cholesky linear solves,
-    materialized Jacobian); Gauss-Newton stops when its step ``|p|_2 <= rtol`` (jaxopt's only
-    criterion; it solves the normal equations by CG and has no line search). ``result`` is
-    ``successful`` when that criterion holds at the end, ``max_steps_reached`` otherwise and
-    ``nonfinite`` if the value or cost is not finite (the value is then ``y0``).
-    ``cost_history`` holds the initial and final costs only. Bounds are not supported.
+    same ``jax.custom_jvp`` residual as for optimistix. The solver's own ``init_state`` / ``update``
+    run on the project's driver :func:`solvers._iterate.iterate` as jaxopt's ``run`` does (one
+    update, then updates while ``state.error > tol``, at most ``max_steps``), so without ``stop`` the
+    iterates and ``num_steps`` are jaxopt's; under ``jax.vmap`` on the CPU a batch runs on
+    compacted lanes. Convergence: Levenberg-Marquardt stops when ``|J^T r|_2 <= atol`` (jaxopt's
+    ``'grad-l2-norm'`` criterion, Cholesky linear solves, materialized Jacobian); Gauss-Newton
+    stops when its step ``|p|_2 <= rtol`` (jaxopt's only criterion; it solves the normal equations
+    by CG and has no line search). A user ``stop(y, r, args)`` is checked at ``y0`` and after every
+    update; Levenberg-Marquardt's state holds the residual at its iterate, Gauss-Newton's the one
+    at the previous iterate, so with a ``stop`` Gauss-Newton evaluates ``fn`` once more per
+    update. ``result`` is ``successful`` when jaxopt's criterion or the user's stop holds at the
+    end, ``max_steps_reached`` otherwise and ``nonfinite`` if the value or cost is not finite (the
+    value is then ``y0``). ``cost_history`` holds the initial and final costs only. Bounds are not
+    supported.
 
     Attributes:
         name: ``"LevenbergMarquardt"`` or ``"GaussNewton"`` (static).
@@ -188,7 +296,8 @@ class JaxoptSolver(_AbstractAdapter):
     def _solve(self, problem, y0, args):
         jaxopt = _import_jaxopt()
         fn = problem.custom_jvp_residual()
-        if self.name == "LevenbergMarquardt":
+        lm = self.name == "LevenbergMarquardt"
+        if lm:
             solver = jaxopt.LevenbergMarquardt(
                 residual_fun=fn,
                 maxiter=self.max_steps,
@@ -204,11 +313,38 @@ class JaxoptSolver(_AbstractAdapter):
             solver = jaxopt.GaussNewton(
                 residual_fun=fn, maxiter=self.max_steps, tol=self.rtol, implicit_diff=False, jit=True
             )
-        params, state = solver.run(y0, args)
-        converged = state.error <= (self.atol if self.name == "LevenbergMarquardt" else self.rtol)
+        tol = self.atol if lm else self.rtol
+        stop = problem.stop
+
+        def user_stop(y, state):
+            if stop is None:
+                return jnp.array(False)
+            # LM's state holds r at its (accepted) iterate; GN's holds r at the previous iterate
+            r = state.residual if lm else problem.residual(y, args)
+            return jnp.asarray(stop(y, r, args), bool)
+
+        # jaxopt's `run`: one update unconditionally, then updates while `state.error > tol`,
+        # at most `maxiter` in all
+        state0 = solver.init_state(y0, args)
+        first = solver.update(y0, state0, args)
+        init = _JaxoptLoop(y=first.params, state=first.state, user=user_stop(first.params, first.state))
+        if stop is not None:  # the user's stop also looks at y0, whose residual is in the initial state
+            at_y0 = jnp.asarray(stop(y0, state0.residual, args), bool)
+            state0 = jax.tree.map(lambda a, b: jnp.asarray(a, jnp.result_type(b)), state0, first.state)
+            init = jax.tree.map(lambda a, b: jnp.where(at_y0, a, b), _JaxoptLoop(y=y0, state=state0, user=at_y0), init)
+
+        def step(c: _JaxoptLoop) -> _JaxoptLoop:
+            params, state = solver.update(c.y, c.state, args)
+            return _JaxoptLoop(y=params, state=state, user=user_stop(params, state))
+
+        it = iterate(
+            step, init, done=lambda c: jnp.invert(c.state.error > tol) | c.user, max_steps=self.max_steps - 1,
+            fixed_steps=False, finite=None,  # no guard: as jaxopt (the value is checked afterwards)
+        )
+        params, state = it.state.y, it.state.state
+        converged = (state.error <= tol) | it.state.user
         result = RESULTS.where(converged, RESULTS.successful, RESULTS.max_steps_reached)
-        damping = state.damping_factor if self.name == "LevenbergMarquardt" else jnp.zeros((), y0.dtype)
+        damping = state.damping_factor if lm else jnp.zeros((), y0.dtype)
         return _adapter_solution(
             problem, y0, args, params, result, state.iter_num, state.delta, damping, self.max_steps
         )
-

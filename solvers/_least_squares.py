@@ -125,7 +125,9 @@ def least_squares(
         stop: optional early-stop criterion ``stop(y, r, args) -> bool`` on an iterate and its
             residual (no extra evaluation of ``fn``), checked at ``y0`` and after every step; when
             it holds the solve ends there with ``RESULTS.successful`` (e.g. IK: every target within
-            its tolerance, as in closed-loop IK). Own solvers only.
+            its tolerance, as in closed-loop IK). Every solver takes it: the adapters drive their
+            backend's own iterations and check it on each accepted iterate (see
+            :class:`OptimistixSolver` and :class:`JaxoptSolver` for what that costs).
         throw: if true, raise (through ``RESULTS.error_if``, an ``equinox.EquinoxRuntimeError``
             whose message is the result's advice) unless the solve succeeds. Under ``vmap`` one
             failing element raises for the whole batch.
@@ -138,7 +140,7 @@ def least_squares(
     Raises:
         ValueError: ``y0`` is not 1-D, ``bounds`` do not match ``y0`` or ``lower > upper``,
             ``fn`` does not return a 1-D array, ``jac`` does not return ``[m, n]``, or bounds were
-            given (or ``stop``) to a backend adapter. Raised in Python, before anything is computed.
+            given to a backend adapter. Raised in Python, before anything is computed.
         equinox.EquinoxRuntimeError: ``throw=True`` and the solve failed.
     """
     if not isinstance(solver, (AbstractLeastSquaresSolver, _AbstractAdapter)):
@@ -177,10 +179,6 @@ def least_squares(
         if not isinstance(lower, jax.core.Tracer) and not isinstance(upper, jax.core.Tracer):
             if np.any(np.asarray(lower) > np.asarray(upper)):
                 raise ValueError("bounds: expected lower <= upper for every variable")
-    if stop is not None and isinstance(solver, _AbstractAdapter):
-        raise ValueError(
-            f"stop: not supported by {type(solver).__name__}; use GaussNewton, LevenbergMarquardt or GradientDescent"
-        )
     return _least_squares(fn, jac, solver, y0, args, lower, upper, stop, throw)
 
 

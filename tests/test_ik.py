@@ -324,6 +324,31 @@ def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
     assert not bool(fewer.success)
 
 
+def test_stop_at_tolerance_with_the_optimistix_adapter():
+    """``stop_at_tolerance`` reaches the adapters too: optimistix LM stops once every target is met,
+    long before its own tolerances would."""
+    import optimistix as optx
+
+    skel = small_skeleton()
+    q, t = random_pose(skel, 11)
+    goal_q, goal_t = random_pose(skel, 12)
+    out = _fk(skel, goal_q, goal_t)
+    targets = (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4])),
+               ik.Target("head_End", out.end_site_positions[0], weight=0.5))
+    tol = 1e-3
+    solver = solvers.OptimistixSolver(optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12), max_steps=500)
+
+    def solve(stop):
+        return ik.solve_ik(skel, targets, q, t, position_tolerance=tol, orientation_tolerance=tol,
+                           stop_at_tolerance=stop, solver=solver)
+
+    early, full = solve(True), solve(False)
+    assert bool(early.success) and early.result == solvers.RESULTS.successful, solvers.RESULTS[early.result]
+    assert float(jnp.max(early.position_errors)) <= tol and float(jnp.max(early.orientation_errors)) <= tol
+    assert int(early.stats["num_steps"]) < int(full.stats["num_steps"]), (early.stats["num_steps"],
+                                                                          full.stats["num_steps"])
+
+
 def test_targets_json_limits_and_tolerances():
     skel = small_skeleton()
     spec = {"targets": [{"joint": "forearm_End", "position": [0, 1, 2]}], "position_tolerance": 0.01,

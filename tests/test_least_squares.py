@@ -21,6 +21,7 @@ import scipy.optimize
 
 import solvers
 from solvers import RESULTS, GaussNewton, JaxoptSolver, LevenbergMarquardt, OptimistixSolver, least_squares
+from solvers import _lanes
 from solvers._ls_base import _solve_normal
 from solvers._ls_problem import _Problem
 
@@ -775,5 +776,121 @@ def test_stop_criterion_ends_the_solve_early(fixed):
     assert k < int(full.stats["num_steps"])
     history = np.asarray(sol.stats["cost_history"])
     assert history[k] <= target and np.all(history[:k] > target)
-    with pytest.raises(ValueError, match="stop: not supported by OptimistixSolver"):
-        least_squares(fn, OptimistixSolver(optx.LevenbergMarquardt(1e-8, 1e-8)), y0, stop=lambda y, r, a: True)
+
+
+# ---------------------------------------------------------------------------------------------
+# The adapters on the project's driver: the backends' own iterates, and the user's stop.
+# ---------------------------------------------------------------------------------------------
+
+_ADAPTERS = ("optx-lm", "optx-gn", "optx-dogleg", "jaxopt-lm", "jaxopt-gn")
+
+
+def _black_box(name: str, fn, y0, max_steps: int):
+    """``(value, num_steps)`` of the backend's own entry point, configured as ``SOLVERS[name]``."""
+    adapter = SOLVERS[name]()
+    if name.startswith("optx"):
+        sol = optx.least_squares(fn, adapter.solver, y0, max_steps=max_steps, throw=False)
+        return sol.value, sol.stats["num_steps"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        import jaxopt
+    if adapter.name == "LevenbergMarquardt":
+        backend = jaxopt.LevenbergMarquardt(
+            residual_fun=fn, maxiter=max_steps, damping_parameter=adapter.damping_parameter,
+            stop_criterion="grad-l2-norm", tol=adapter.atol, solver="cholesky", materialize_jac=True,
+            implicit_diff=False,
+        )
+    else:
+        backend = jaxopt.GaussNewton(residual_fun=fn, maxiter=max_steps, tol=adapter.rtol, implicit_diff=False)
+    params, state = backend.run(y0, None)
+    return params, state.iter_num
+
+
+def _cost_at_most(y, r, target):
+    """The early stop of the adapter tests: ``0.5 |r|^2 <= target`` (``target`` comes in ``args``)."""
+    return 0.5 * (r @ r) <= target
+
+
+def _rosenbrock_args(y, target):
+    return rosenbrock(y, None)
+
+
+@pytest.mark.parametrize("solver", [_solver_param(s) for s in _ADAPTERS])
+def test_adapters_without_stop_equal_the_backends(solver):
+    """Driven step by step through ``init``/``step``, an adapter takes the backend's own iterates:
+    its value and step count are those of ``optx.least_squares`` / jaxopt's ``run``."""
+    p = PROBLEMS["rosenbrock"]
+    y0 = jnp.asarray(p.y0)
+    sol = solve("rosenbrock", solver)
+    value, num_steps = _black_box(solver, p.fn, y0, 256)
+    assert int(sol.stats["num_steps"]) == int(num_steps), solver
+    assert_close(f"{solver}: value", sol.value, value, atol=1e-14)
+
+
+@pytest.mark.parametrize("solver", [_solver_param(s) for s in _ADAPTERS])
+def test_adapters_stop_at_the_first_iterate_meeting_stop(solver):
+    """With ``stop``, an adapter ends at the first of the backend's iterates where it holds: the
+    backend cut off after as many steps returns the same value and meets the stop, one step
+    fewer does not (the cost of the accepted iterates never increases)."""
+    p = PROBLEMS["rosenbrock"]
+    y0 = jnp.asarray(p.y0)
+    target = jnp.asarray(1e-3)
+    sol = least_squares(_rosenbrock_args, SOLVERS[solver](), y0, target, stop=_cost_at_most)
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    k = int(sol.stats["num_steps"])
+    assert 1 < k < int(solve("rosenbrock", solver).stats["num_steps"]), k
+    assert float(sol.stats["cost"]) <= float(target)
+    at_k, _ = _black_box(solver, p.fn, y0, k)
+    assert_close(f"{solver}: value after {k} steps", sol.value, at_k, atol=1e-14)
+    before, _ = _black_box(solver, p.fn, y0, k - 1)
+    assert 0.5 * float(jnp.sum(p.fn(before, None) ** 2)) > float(target)
+    # a stop that holds at y0 ends the solve there, before any step
+    at_y0 = least_squares(_rosenbrock_args, SOLVERS[solver](), y0, jnp.asarray(1e3), stop=_cost_at_most)
+    assert int(at_y0.stats["num_steps"]) == 0 and at_y0.result == RESULTS.successful
+    assert_close("value at y0", at_y0.value, y0, atol=0)
+
+
+@pytest.mark.parametrize("solver", [_solver_param("optx-lm"), _solver_param("jaxopt-lm")])
+def test_adapters_stop_vmap_equals_loop_on_lanes(solver):
+    """A batch larger than the lanes (the compacted loop): each element as solved alone."""
+    n = _lanes.LANES + 16
+    y0s = jnp.asarray(np.random.default_rng(7).uniform(-2.0, 2.0, size=(n, 2)))
+    target = jnp.asarray(1e-4)
+    one = jax.jit(lambda y0: least_squares(_rosenbrock_args, SOLVERS[solver](), y0, target, stop=_cost_at_most))
+    batched = jax.jit(jax.vmap(one))(y0s)
+    steps = np.asarray(batched.stats["num_steps"])
+    assert np.all(np.asarray(batched.result == RESULTS.successful))
+    assert np.all(np.asarray(batched.stats["cost"]) <= float(target))
+    assert steps.min() < steps.max()  # the lanes have something to compact
+    for i in range(n):
+        single = one(y0s[i])
+        assert int(single.stats["num_steps"]) == steps[i], f"num_steps[{i}]"
+        assert_close(f"value[{i}]", batched.value[i], single.value, atol=1e-12)
+
+
+def test_optimistix_best_so_far_returns_the_iterate_meeting_stop():
+    """``optx.BestSoFarLeastSquares`` postprocesses to its best point so far; a solve ended by the
+    user's stop returns the iterate that met it (and, without stop, what optimistix returns)."""
+    p = PROBLEMS["rosenbrock"]
+    y0 = jnp.asarray(p.y0)
+    inner = optx.BestSoFarLeastSquares(optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12))
+    solver = OptimistixSolver(inner, max_steps=256)
+    plain = least_squares(_rosenbrock_args, solver, y0, jnp.asarray(1e-3))
+    ref = optx.least_squares(p.fn, inner, y0, max_steps=256, throw=False)
+    assert int(plain.stats["num_steps"]) == int(ref.stats["num_steps"])
+    assert_close("value", plain.value, ref.value, atol=1e-14)
+    sol = least_squares(_rosenbrock_args, solver, y0, jnp.asarray(1e-3), stop=_cost_at_most)
+    assert sol.result == RESULTS.successful and float(sol.stats["cost"]) <= 1e-3
+    assert int(sol.stats["num_steps"]) < int(plain.stats["num_steps"])
+
+
+def test_optimistix_adapter_keeps_implicit_derivatives():
+    """The adapter runs under ``optx.ImplicitAdjoint`` as ``optx.least_squares`` does: the derivative
+    of a linear least-squares solution with respect to the data is the pseudo-inverse."""
+    solver = OptimistixSolver(optx.LevenbergMarquardt(rtol=1e-12, atol=1e-14), max_steps=64)
+    A = jnp.asarray(_A)
+
+    def value(b):
+        return least_squares(lambda y, b_: A @ y - b_, solver, jnp.zeros(3), b).value
+
+    assert_close("d value / d b", jax.jacrev(value)(jnp.asarray(_B)), np.linalg.pinv(_A), atol=1e-10)

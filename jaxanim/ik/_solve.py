@@ -201,8 +201,7 @@ def _solve(skeleton, layout, targets, q0, translations, reference, options: IKOp
         var_w = jnp.concatenate(([jnp.ones(3, dtype)] if layout.free_root else [])
                                 + [jnp.repeat(w[jnp.asarray(layout.free_joints)], 3)])
         solver = eqx.tree_at(lambda s: s.weights, solver, var_w, is_leaf=lambda x: x is None)
-    own = isinstance(solver, solvers.AbstractLeastSquaresSolver)
-    stop = _stop if options.stop_at_tolerance and own else None
+    stop = _stop if options.stop_at_tolerance else None
     sol = solvers.least_squares(_residual, solver, y0, data, jac=True, bounds=bounds, stop=stop, throw=options.throw)
     q, t = _pose(sol.value, data)
     out = forward_kinematics(skeleton, q, t)
@@ -274,7 +273,8 @@ def solve_ik(
             for ``success``; default ``1e-5`` times the skeleton's size (sum of |offsets|).
         orientation_tolerance: angle (radians) within which an orientation target counts as met.
         stop_at_tolerance: stop as soon as every target is within its tolerance (the usual IK
-            criterion, as in closed-loop IK; own solvers only). ``False``: solve the regularized
+            criterion, as in closed-loop IK; any solver, the optimistix and jaxopt adapters
+            included: they check it on each accepted iterate). ``False``: solve the regularized
             least-squares problem to the solver's own tolerances (slow when the regularizer is weak
             and the task leaves many directions free: the minimum is then very flat).
         throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
