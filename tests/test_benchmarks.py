@@ -245,3 +245,30 @@ def test_quick_ik_report(tmp_path):
         assert _row(rows, bench_ik._PIN, "float64", 8)[7] == "100.0 %"
     assert "Target: ≥ 99.5 % success at batch 8 in float32 and float64 (own LM): worst jaxanim LM (adaptive)" in text
     assert "Iterations the adaptive LM took to converge" in text and "*Measured by `python -m benchmarks ik" in text
+
+
+def test_profile_attributes_time_to_the_compiled_instructions():
+    """``benchmarks.profile``: the trace's events are the compiled program's instructions; a LAPACK solve shows up
+    as a library call, and the quick FK profile row reports instructions run and kernels compiled."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks import profile
+
+    A = jnp.eye(64) * 3.0 + 0.01
+    compiled = jax.jit(lambda a, b: jnp.linalg.solve(a, jnp.sin(b))).lower(A, A).compile()
+    instructions = profile.hlo_instructions(compiled.as_text())
+    events = profile.profile_events(compiled, (A, A), calls=2)
+    assert events and set(events) <= set(instructions), set(events) - set(instructions)
+    p = profile.summarize(events, instructions, compiled.as_text())
+    kinds = dict(p.by_kind)
+    assert any(k.startswith("library calls (dgetrf") for k in kinds), kinds
+    assert abs(sum(kinds.values()) - 1.0) < 1e-9 and p.instructions_run >= 2 and p.kernels_compiled >= 2
+    data = shared_data_dir()
+    if data is None:
+        pytest.skip("../shared/data is absent: the FK profile row needs the CMU clip")
+    config = BenchConfig.make_quick(dtypes=("float64",), only=("FK (quaternions)",), data_dir=data, verbose=False)
+    (table,) = profile.run_profile(config)
+    rows = [r for r in table.rows if r.dtype == "float64"]
+    assert rows and all(r.measured for r in rows), [r.skipped for r in rows]
+    assert int(rows[0].accuracy) > 10 and "kernels compiled" in rows[0].note and "**Cause**" in rows[0].note

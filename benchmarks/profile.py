@@ -1,0 +1,380 @@
+"""Where the time goes in the kernels behind the speed targets (``python -m benchmarks profile``).
+
+Every kernel is compiled once (``jax.jit(f).lower(*args).compile()``), timed like the other benchmarks, then
+called under ``jax.profiler.trace``. The trace's XLA:CPU events are the compiled program's instructions (a
+fusion, a LAPACK custom call, a copy, a while loop). Each event is matched by name to the instruction in
+``compiled.as_text()``, which gives its kind, and the time is summed per kind. While loops and conditionals are
+left out of the sums, because their bodies' instructions are counted themselves. The report gives:
+
+- the instructions run per call, and their mean time: a count in the thousands at a few hundred nanoseconds each
+  means the call is dominated by the cost of launching XLA:CPU kernels, not by arithmetic;
+- the share of each kind;
+- the five most expensive instructions, with the JAX operation they came from;
+- the kernels in the compiled program: the compiler builds every one separately (LLVM), so their number drives
+  compile time.
+
+A row's *cause* is written from these measurements, and the kernel's own benchmark section states the ratio
+to the peer. The profiler slows every call, so compare the shares, not the times, with the other sections.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import pathlib
+import re
+import tempfile
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from .report import Row, Table, format_seconds
+from .timing import compile_time, sample_call
+
+__all__ = ["KERNELS", "Instruction", "hlo_instructions", "kind_of", "profile_events", "run_profile"]
+
+PROFILED_CALLS = 2
+CART_POLE_PROFILED_STEPS = 60  # of its 600: the trace of every event of a whole solve would not fit in memory
+_CONTAINERS = ("while", "conditional", "call")  # their bodies' instructions are events of their own
+
+
+@dataclasses.dataclass(frozen=True)
+class Instruction:
+    """One instruction of a compiled HLO module: ``opcode``, fusion kind or custom-call target (``detail``) and the
+    JAX ``op_name`` it was lowered from."""
+
+    opcode: str
+    detail: str
+    op_name: str
+
+
+_INSTR = re.compile(r"^\s*(?:ROOT )?%?([\w.\-]+) = .*? ([a-z][\w\-]*)\((.*)$")
+
+
+def hlo_instructions(text: str) -> dict[str, Instruction]:
+    """Every instruction of ``compiled.as_text()`` by name (inner computations of fusions included: harmless)."""
+    out = {}
+    for line in text.splitlines():
+        m = _INSTR.match(line)
+        if not m:
+            continue
+        name, opcode, rest = m.groups()
+        detail = ""
+        if opcode == "fusion":
+            k = re.search(r"kind=(k\w+)", rest)
+            detail = k.group(1) if k else ""
+        elif opcode == "custom-call":
+            k = re.search(r'custom_call_target="([^"]+)"', rest)
+            detail = k.group(1) if k else ""
+        op = re.search(r'op_name="([^"]+)"', rest)
+        out[name] = Instruction(opcode, detail, op.group(1) if op else "")
+    return out
+
+
+def kind_of(ins: Instruction | None) -> str:
+    """The reported kind of an instruction: elementwise fusion, reduction, data movement, library call, ..."""
+    if ins is None:
+        return "other"
+    if ins.opcode == "fusion":
+        if ins.detail == "kCustom":  # XLA:CPU hands dots to YNNPACK as custom fusions
+            return "dot fusions"
+        if ins.detail == "kInput":
+            return "reduction fusions"
+        if ins.detail == "kOutput":
+            return "dot fusions"
+        n = ins.op_name.rsplit("/", 1)[-1]
+        if any(w in n for w in ("concatenate", "split", "slice", "transpose", "gather", "scatter", "dynamic",
+                                "broadcast_in_dim", "pad", "stack", "_take", "copy")):
+            return "data-movement fusions"
+        return "elementwise fusions"
+    if ins.opcode == "custom-call":
+        name = ins.detail.removeprefix("lapack_").removesuffix("_ffi")
+        return f"library calls ({name})" if name else "library calls"
+    if ins.opcode in ("copy", "transpose", "gather", "scatter", "dynamic-update-slice", "dynamic-slice",
+                      "concatenate", "slice", "pad"):
+        return "data movement (" + ins.opcode + ")"
+    if ins.opcode in ("dot", "convolution"):
+        return "dots"
+    if ins.opcode in ("sort",):
+        return "sorts"
+    return ins.opcode
+
+
+def profile_events(compiled: Callable, args: tuple, calls: int = PROFILED_CALLS) -> dict[str, tuple[float, int]]:
+    """``{instruction name: (seconds, count)}`` per call of ``compiled(*args)`` from a ``jax.profiler`` trace of
+    XLA:CPU's threads (runtime bookkeeping events excluded)."""
+    from jax._src.lib import _profile_data  # noqa: PLC0415 - the reader of the profiler's own trace files
+
+    jax.block_until_ready(compiled(*args))
+    with tempfile.TemporaryDirectory() as logdir:
+        with jax.profiler.trace(logdir):
+            for _ in range(calls):
+                jax.block_until_ready(compiled(*args))
+        path = next(pathlib.Path(logdir).rglob("*.xplane.pb"))
+        data = _profile_data.ProfileData.from_file(str(path))
+    total, count = collections.Counter(), collections.Counter()
+    for plane in data.planes:
+        if not plane.name.startswith("/host:CPU"):
+            continue
+        for line in plane.lines:
+            if not line.name.startswith("tf_XLA"):
+                continue
+            for ev in line.events:
+                if "::" in ev.name or " " in ev.name:  # ThunkExecutor::Execute and other bookkeeping
+                    continue
+                total[ev.name] += ev.duration_ns * 1e-9
+                count[ev.name] += 1
+    return {k: (total[k] / calls, count[k] // calls) for k in total}
+
+
+@dataclasses.dataclass(frozen=True)
+class KernelProfile:
+    """The summary of one profiled kernel (see the module docstring)."""
+
+    instructions_run: int
+    busy_s: float  # summed over the instructions (several threads may overlap)
+    by_kind: list[tuple[str, float]]  # (kind, share of busy time), largest first
+    top: list[tuple[str, str, float, int]]  # (instruction, op_name tail, share, runs per call)
+    kernels_compiled: int
+
+
+def summarize(events: dict[str, tuple[float, int]], instructions: dict[str, Instruction], text: str) -> KernelProfile:
+    leaf = {k: v for k, v in events.items()
+            if (ins := instructions.get(k)) is None or ins.opcode not in _CONTAINERS}
+    busy = sum(t for t, _ in leaf.values()) or 1e-30
+    by_kind = collections.Counter()
+    for k, (t, _) in leaf.items():
+        by_kind[kind_of(instructions.get(k))] += t
+    top = sorted(leaf.items(), key=lambda kv: -kv[1][0])[:5]
+    tail = lambda k: "/".join(instructions[k].op_name.split("/")[-2:]) if k in instructions else "?"  # noqa: E731
+    kernels = len(re.findall(r"= \S+ (?:fusion|custom-call|copy|dot|gather|scatter|transpose|sort)\(", text))
+    return KernelProfile(
+        instructions_run=sum(c for _, c in leaf.values()), busy_s=busy,
+        by_kind=[(k, t / busy) for k, t in by_kind.most_common()],
+        top=[(k, tail(k), t / busy, c) for k, (t, c) in top], kernels_compiled=kernels)
+
+
+def _describe(p: KernelProfile, seconds: float) -> str:
+    kinds = ", ".join(f"{k} {s:.0%}" for k, s in p.by_kind[:5] if s >= 0.01)
+    top = "; ".join(f"`{k}` ({op}) {s:.0%}, {c}×" for k, op, s, c in p.top)
+    per = seconds / max(p.instructions_run, 1)
+    return (f"{p.instructions_run} XLA instructions run per call ({format_seconds(per)} of wall time each); "
+            f"{p.kernels_compiled} kernels compiled; time by kind: {kinds}; most expensive: {top}")
+
+
+# --- the kernels ---------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Kernel:
+    """A profiled kernel: ``build(config) -> (fn, args, chars_per_call)`` (``fn`` is jitted here), the target it
+    misses (section and line) and the cause read from its profile."""
+
+    name: str
+    dtype: str
+    batch: int
+    target: str
+    build: Callable[[Any, int], tuple[Callable, tuple, int]]
+    cause: str
+
+
+def _fk(config, batch, dtype="float64"):
+    from jaxanim import forward_kinematics
+
+    from .fk import CLIP, Problem, _cast
+
+    problem = Problem(config.data_file(CLIP), batch)
+    skel = _cast(problem.skeleton, dtype)
+    return jax.vmap(lambda q, t: forward_kinematics(skel, q, t)), problem.jax_inputs(dtype, batch), batch
+
+
+def _fk32(config, batch):
+    return _fk(config, batch, "float32")
+
+
+def _jacobian(config, batch):
+    from jaxanim import jacobian
+
+    from .fk import CLIP, JACOBIAN_SITES, Problem
+
+    problem = Problem(config.data_file(CLIP), batch)
+    skel = problem.skeleton
+    return (jax.vmap(lambda q, t: jacobian(skel, q, t, JACOBIAN_SITES)), problem.jax_inputs("float64", batch),
+            batch)
+
+
+def _ik(config, batch):
+    import solvers
+
+    from . import ik
+
+    skel = ik.load_skeleton(config)
+    ps = ik.draw_problems(skel, batch)
+    solver = solvers.LevenbergMarquardt(**ik._tol(jnp.float64), max_steps=ik.MAX_STEPS, fixed_steps=False)
+    kw = ik._ik(solver, ps)
+    solve = kw.pop("solve")
+    return (jax.vmap(lambda tg, q, t: solve(skel, tg, q, t, **kw)), (ps.targets(jnp.float64), *ps.start(jnp.float64)),
+            batch)
+
+
+def _optimistix_ik(config, batch):
+    import optimistix as optx
+
+    import solvers
+
+    from . import ik
+
+    skel = ik.load_skeleton(config)
+    ps = ik.draw_problems(skel, batch)
+    kw = ik._ik(solvers.OptimistixSolver(optx.LevenbergMarquardt(**ik._tol(jnp.float64)), max_steps=ik.MAX_STEPS), ps)
+    solve = kw.pop("solve")
+    return (jax.vmap(lambda tg, q, t: solve(skel, tg, q, t, **kw)), (ps.targets(jnp.float64), *ps.start(jnp.float64)),
+            batch)
+
+
+def _unicycle(config, batch):
+    import solvers
+    from solvers import problems
+
+    from .oc import UNICYCLE_MAX_STEPS, UNICYCLE_X0
+
+    prob = problems.unicycle(T=200, dtype=jnp.float64)
+    fn = lambda x0, us, args: solvers.ilqr(prob.dynamics, prob.cost, x0, us, terminal_cost=prob.terminal_cost,  # noqa
+                                           args=args, max_steps=UNICYCLE_MAX_STEPS)
+    return fn, (jnp.asarray(UNICYCLE_X0, jnp.float64), prob.us_init, prob.args), 1
+
+
+def _swing(name, max_steps=None):
+    def build(config, batch):
+        from . import oc
+
+        prob = oc.swing_problem(name)
+        steps = oc.SWING_MAX_STEPS[name] if max_steps is None else max_steps
+        solve = oc._solve(prob, "ilqr", max_steps=steps, atol=oc.SWING_STOP, rtol=0.0)
+        us = jnp.broadcast_to(prob.us_init, (batch,) + prob.us_init.shape)
+        return (jax.vmap(solve, in_axes=(0, 0, None)), (jnp.asarray(oc.initial_states(name, batch)), us, prob.args),
+                batch)
+
+    return build
+
+
+def _dare(config, batch):
+    import solvers
+
+    from .oc import make_dare_systems
+
+    return jax.vmap(solvers.dare), tuple(jnp.asarray(z) for z in make_dare_systems(batch)), batch
+
+
+def _physics(model):
+    def build(config, batch):
+        from jaxanim import physics
+
+        from .physics import DT, PhysicsSizes, standing_character
+
+        ch = standing_character(config.data_dir, model)
+        n = PhysicsSizes.steps_per_call
+
+        def one(s, args):
+            r = physics.rollout(ch.char.model, s, DT, n, record_every=n, controller=ch.controller,
+                                controller_args=args)
+            return r.final.position, r.result
+
+        return jax.vmap(one, in_axes=(0, None)), (ch.batch_states(batch), ch.gains), batch * n
+
+    return build
+
+
+KERNELS: tuple[Kernel, ...] = (
+    Kernel("FK (quaternions)", "float64", 4096, "fk: FK ≥ 1.8x the Pinocchio loop (float64)", _fk,
+           "Per-level products of [B, n, 3, 3] blocks whose minor dimension is 3: XLA:CPU runs each fusion as a "
+           "scalar loop over the batch with strided 3-element rows (no vector lanes), and most of the time is "
+           "data movement (the split / concatenate of every level's parents and the reorder in and out of level "
+           "order: the data-movement share above). The memory floor row of the fk section shows that reading and "
+           "writing the data once costs about a tenth of FK. A batch-minor formulation measured slower on this CPU "
+           "(1.2 µs / char at 4096, of which the transposes in and out cost 0.8)."),
+    Kernel("FK (quaternions)", "float32", 4096, "fk: FK ≥ 2.5x the Pinocchio loop (float32)", _fk32,
+           "The same program in float32: the kernels are the same scalar loops, so halving the bytes saves only "
+           "the data-movement share."),
+    Kernel("Jacobian of 5 sites", "float64", 1024, "jacobian: ≥ 3x Pinocchio", _jacobian,
+           "FK plus the [5, 6, 96] columns: the cross products of every joint axis with every site offset are "
+           "[B, 5, 31, 3] elementwise fusions, with the same data movement as FK around them."),
+    Kernel("IK LM (adaptive)", "float64", 1024, "ik: own LM ≥ 10x Pinocchio CLIK; IK compile ≤ 5 s", _ik,
+           "One LM iteration is FK + Jacobian + a 30x30 Cholesky per problem: hundreds of XLA instructions per "
+           "iteration on 128-problem lanes, each a small kernel; the Cholesky and triangular solves are LAPACK "
+           "calls per problem. Compile time is the LLVM build of every kernel: the program has the residual and "
+           "Jacobian twice (initial linearization, then in the loop), the final check once, and the lanes' "
+           "bookkeeping."),
+    Kernel("IK optimistix LM", "float64", 1024, "ik: the optimistix backend within 3x of own LM", _optimistix_ik,
+           "optimistix's LevenbergMarquardt computes each damped step as the least-squares solution of the stacked "
+           "[J; sqrt(lambda) I] (126 x 96) by lineax's dense QR (the geqrf / ormqr library calls above), where own "
+           "LM solves the 30 x 30 system J D^-1 J' + lambda I by Cholesky (fewer residuals than variables). "
+           "Isolated, per problem: the QR 260 µs, a 96 x 96 normal-equation Cholesky 42 µs, the 30 x 30 Cholesky "
+           "8.6 µs. It also takes about 1.5x the iterations (its first step only evaluates the start; its trust "
+           "region rejects more steps). `linear_solver=lineax.Normal(lineax.Cholesky())`, which a user may pass, "
+           "measured only 14-25 % faster (it forms the damping block as a dense 96 x 96 product)."),
+    Kernel("iLQR unicycle, T = 200", "float64", 1, "oc: one unicycle solve ≤ 1.5x Crocoddyl", _unicycle,
+           "Per iteration three scans over 200 knots (backward pass, adjoint gradient, line-search rollout), each "
+           "knot tens of XLA instructions on 2- and 3-vectors: the call is thousands of kernel launches of a few "
+           "hundred nanoseconds, where Crocoddyl runs straight C++ (unrolling the scans 4-8x did not help: ~same "
+           "run time, 2-4x the compile)."),
+    Kernel("iLQR pendulum swing-up", "float64", 1024, "oc: batched DDP ≥ 10x Crocoddyl (pendulum)",
+           _swing("pendulum"),
+           "The backward and forward scans over the horizon on [lanes, 2] states: each knot is a handful of "
+           "kernels over 128 lanes of 2-vectors, so launch overhead, not arithmetic, sets the time."),
+    Kernel("iLQR cart-pole swing-up", "float64", 1024, "oc: batched DDP ≥ 10x Crocoddyl (cart-pole)",
+           _swing("cart_pole", CART_POLE_PROFILED_STEPS),
+           f"As the pendulum's, with 4-vector states, and 330-490 iterations per problem (the profile runs the first "
+           f"{CART_POLE_PROFILED_STEPS}: a trace of all of them does not fit in memory)."),
+    Kernel("DARE 12x4", "float64", 1024, "oc-dare: ≥ 50x the scipy loop", _dare,
+           "Each doubling step solves (I + G H) systems of 12x12: LAPACK getrf / trsm called per system (a "
+           "batched custom call loops over the batch in C++): the library-call shares above; the rest is hundreds "
+           "of small fusions per doubling step on 12 x 12 blocks."),
+    Kernel("rollout (penalty)", "float64", 1024, "physics: penalty ≤ 0.5x MuJoCo C", _physics("penalty"),
+           "Every step eliminates the joint-constrained system level by level of the body tree (6x6 articulated "
+           "inertias folded into the parents, then back-substitution), then the contact forces of every contact "
+           "point: hundreds of small fusions per step on [B, bodies, 6, 6] blocks, none dominant (see the top "
+           "shares), so the step is bound by the number of kernels and their strided 6-wide rows."),
+    Kernel("rollout (complementarity:8)", "float64", 1024, "physics: complementarity:8 ≤ 1x MuJoCo C",
+           _physics("complementarity:8"),
+           "On top of the tree solve, the contact rows are solved by projected Gauss-Seidel, a fixed number of "
+           "sweeps every step, each row after the other (sequential by nature): thousands of tiny kernels per "
+           "call (the instruction count above) on a handful of numbers each."),
+)
+
+
+def run_profile(config) -> list[Table]:
+    """The ``profile`` benchmark (see the module docstring)."""
+    table = Table("profile", "Profiles of the kernels behind the speed targets",
+                  accuracy_label="XLA instructions run / call", description=(
+                      "Each kernel is compiled once, timed like the other sections, then run "
+                      f"{PROFILED_CALLS} times under `jax.profiler.trace`. The trace's XLA:CPU events are matched "
+                      "to the compiled HLO by instruction name, and their time is summed per kind (while loops "
+                      "excluded: their bodies count themselves). The notes give the instructions run per call, "
+                      "the kernels compiled, the time by kind and the five most expensive instructions, then the "
+                      "cause read from them. The profiler slows every call: compare shares, not times, with "
+                      "the other sections."))
+    for k in KERNELS:
+        batch = 8 if config.quick and k.batch > 1 else k.batch
+        if not config.selects(k.name):
+            continue
+        config.log(f"profile: {k.name} ({k.dtype}, batch {batch})")
+        try:
+            fn, args, chars = k.build(config, batch)
+            cs = compile_time(jax.jit(fn), *args)
+            jax.block_until_ready(cs.compiled(*args))
+            tm = sample_call(config, cs.compiled, args, 0.0)
+            p = summarize(profile_events(cs.compiled, args), hlo_instructions(cs.compiled.as_text()),
+                          cs.compiled.as_text())
+        except Exception as exc:  # noqa: BLE001 - one kernel's failure is a row, not the end of the report
+            table.rows.append(Row(k.name, k.dtype, batch, skipped=f"failed: {type(exc).__name__}: "
+                                  f"{(str(exc).splitlines() or [''])[0][:200]}"))
+            continue
+        table.rows.append(Row(k.name, k.dtype, batch, tm.median, tm.min, chars, cs.total,
+                              accuracy=str(p.instructions_run), samples=tm.samples,
+                              note=f"target: {k.target}. Profile: {_describe(p, tm.median)}. **Cause**: {k.cause}",
+                              extra=dict(profile=p)))
+    return [table]
+
