@@ -299,8 +299,9 @@ KERNELS: tuple[Kernel, ...] = (
            "The same program in float32: the kernels are the same scalar loops, so halving the bytes saves only "
            "the data-movement share."),
     Kernel("Jacobian of 5 sites", "float64", 1024, "jacobian: ≥ 3x Pinocchio", _jacobian,
-           "FK plus the [5, 6, 96] columns: the cross products of every joint axis with every site offset are "
-           "[B, 5, 31, 3] elementwise fusions, with the same data movement as FK around them."),
+           "FK plus the [5, 6, 96] columns (cross products of every joint axis with every site offset, "
+           "[B, 5, 31, 3] elementwise fusions); most of the time is data movement: the concatenate that assembles "
+           "the output columns, and FK's own split / concatenate before it (the top instructions above)."),
     Kernel("IK LM (adaptive)", "float64", 1024, "ik: own LM ≥ 10x Pinocchio CLIK; IK compile ≤ 5 s", _ik,
            "One LM iteration is FK + Jacobian + a 30x30 Cholesky per problem: hundreds of XLA instructions per "
            "iteration on 128-problem lanes, each a small kernel; the Cholesky and triangular solves are LAPACK "
@@ -317,9 +318,10 @@ KERNELS: tuple[Kernel, ...] = (
            "measured only 14-25 % faster (it forms the damping block as a dense 96 x 96 product)."),
     Kernel("iLQR unicycle, T = 200", "float64", 1, "oc: one unicycle solve ≤ 1.5x Crocoddyl", _unicycle,
            "Per iteration three scans over 200 knots (backward pass, adjoint gradient, line-search rollout), each "
-           "knot tens of XLA instructions on 2- and 3-vectors: the call is thousands of kernel launches of a few "
-           "hundred nanoseconds, where Crocoddyl runs straight C++ (unrolling the scans 4-8x did not help: ~same "
-           "run time, 2-4x the compile)."),
+           "knot tens of XLA instructions on 2- and 3-vectors: a call runs tens of thousands of instructions of "
+           "tens of nanoseconds each (the counts above), where Crocoddyl runs straight C++; the time is the "
+           "per-instruction cost of the XLA:CPU runtime, not arithmetic (unrolling the scans 4-8x did not help: "
+           "~same run time, 2-4x the compile)."),
     Kernel("iLQR pendulum swing-up", "float64", 1024, "oc: batched DDP ≥ 10x Crocoddyl (pendulum)",
            _swing("pendulum"),
            "The backward and forward scans over the horizon on [lanes, 2] states: each knot is a handful of "
