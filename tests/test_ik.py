@@ -299,15 +299,20 @@ def test_cli_ik_writes_edited_bvh(tmp_path):
     assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "bad2.json"), "--out", str(out)]) == 2
 
 
-def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
-    """The default stops at the first iterate that meets every target's tolerance; without it the
-    weakly regularized problem is solved to the solver's tolerances (many more steps)."""
+def _tolerance_problem():
+    """``(skeleton, q, t, targets)``: a reachable two-target problem of the stop-at-tolerance tests."""
     skel = small_skeleton()
     q, t = random_pose(skel, 11)
     goal_q, goal_t = random_pose(skel, 12)
     out = _fk(skel, goal_q, goal_t)
-    targets = (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4])),
-               ik.Target("head_End", out.end_site_positions[0], weight=0.5))
+    return skel, q, t, (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4])),
+                        ik.Target("head_End", out.end_site_positions[0], weight=0.5))
+
+
+def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
+    """The default stops at the first iterate that meets every target's tolerance; without it the
+    weakly regularized problem is solved to the solver's tolerances (many more steps)."""
+    skel, q, t, targets = _tolerance_problem()
     tol = 1e-3
 
     def solve(stop):
@@ -329,12 +334,7 @@ def test_stop_at_tolerance_with_the_optimistix_adapter():
     long before its own tolerances would."""
     import optimistix as optx
 
-    skel = small_skeleton()
-    q, t = random_pose(skel, 11)
-    goal_q, goal_t = random_pose(skel, 12)
-    out = _fk(skel, goal_q, goal_t)
-    targets = (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4])),
-               ik.Target("head_End", out.end_site_positions[0], weight=0.5))
+    skel, q, t, targets = _tolerance_problem()
     tol = 1e-3
     solver = solvers.OptimistixSolver(optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12), max_steps=500)
 
