@@ -10,6 +10,7 @@ from equinox import AbstractVar
 from jaxtyping import Array, Bool, Float, PyTree
 
 from ._checks import _all_finite
+from . import _lanes
 from ._iterate import iterate
 from ._ls_problem import _Problem
 from ._results import RESULTS, Solution
@@ -265,7 +266,7 @@ def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array,
 
     it = iterate(
         step,
-        loop(y0, solver.init(problem, y0, args)),
+        _lanes.lane_map(lambda y, a: loop(y, solver.init(problem, y, a)), y0, args),
         done=lambda c: c.stop,
         max_steps=solver.max_steps,
         fixed_steps=solver.fixed_steps,

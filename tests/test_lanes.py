@@ -114,3 +114,22 @@ def test_batched_ilqr_equals_one_problem_solves():
         assert int(s.stats["num_steps"]) == int(steps[i])
         np.testing.assert_allclose(np.asarray(out.us[i]), np.asarray(s.us), rtol=1e-9, atol=1e-11)
         np.testing.assert_allclose(float(out.cost[i]), float(s.cost), rtol=1e-12)
+
+
+def test_lane_map_equals_vmap_in_chunks():
+    """``lane_map`` under vmap (more problems than lanes, not a multiple of them; a pytree argument with a shared
+    leaf; a closed-over batched value) equals ``jax.vmap`` of the function; one instance is the function itself."""
+    from solvers._lanes import lane_map
+
+    def fun(a, tree, s):
+        return lane_map(lambda x, t: (jnp.sin(x) * t["w"] + t["c"] * s, x**2), a, tree, lanes=_LANES)
+
+    tree = {"w": _A * 0.5, "c": jnp.asarray(2.0)}  # "c" shared by every element
+    s = jnp.arange(_B, dtype=_A.dtype)
+    got = jax.jit(jax.vmap(fun, in_axes=(0, {"w": 0, "c": None}, 0)))(_A, tree, s)
+    ref = (jnp.sin(_A) * tree["w"] + 2.0 * s, _A**2)
+    for g, r in zip(got, ref):
+        assert g.shape == r.shape
+        np.testing.assert_allclose(np.asarray(g), np.asarray(r), rtol=1e-15)
+    one = fun(_A[3], {"w": tree["w"][3], "c": tree["c"]}, s[3])
+    np.testing.assert_allclose(np.asarray(one[0]), np.asarray(ref[0][3]), rtol=1e-15)

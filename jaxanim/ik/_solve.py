@@ -203,11 +203,13 @@ def _solve(skeleton, layout, targets, q0, translations, reference, options: IKOp
         solver = eqx.tree_at(lambda s: s.weights, solver, var_w, is_leaf=lambda x: x is None)
     stop = _stop if options.stop_at_tolerance else None
     sol = solvers.least_squares(_residual, solver, y0, data, jac=True, bounds=bounds, stop=stop, throw=options.throw)
-    q, t = _pose(sol.value, data)
-    out = forward_kinematics(skeleton, q, t)
-    p_world_sites = out.site_positions()
-    R_world_sites = _site_rotations(skeleton, out, layout.site_idx)
-    pe, oe = _target_errors(layout, targets, p_world_sites, R_world_sites, dtype)
+    def finish(value, data):  # the pose and its target errors, by an FK of the solution
+        q, t = _pose(value, data)
+        out = forward_kinematics(skeleton, q, t)
+        R_world_sites = _site_rotations(skeleton, out, layout.site_idx)
+        return (q, t) + _target_errors(layout, data.targets, out.site_positions(), R_world_sites, dtype)
+
+    q, t, pe, oe = solvers.lane_map(finish, sol.value, data)
     success = ((sol.result == solvers.RESULTS.successful) & jnp.all(pe <= data.position_tolerance)
                & jnp.all(oe <= data.orientation_tolerance))
     return IKSolution(rot.quat_canonical(q), t, sol.result, sol.stats, pe, oe, success)
