@@ -96,7 +96,7 @@ def while_loop(cond: Callable[[Any], Any], body: Callable[[Any], Any], init: Any
     return routed(init, *cond_consts, *body_consts)
 
 
-def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES) -> Any:
+def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bool = True) -> Any:
     """``fun(*args)``, whose batched calls run ``lanes`` problems at a time (a ``lax.map`` over chunks).
 
     Beside a compacted :func:`while_loop`, the work before and after the loop (an initial
@@ -105,8 +105,11 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES) -> Any:
     the body's instead of being built again at the batch's size (batched IK at 1024: 441 kernel
     objects instead of 535, about 1-1.5 s less compile in A/B runs). The values are those of
     ``jax.vmap(fun)``; small batches (at most ``lanes``) and other backends than the CPU take the
-    plain vmap.
+    plain vmap. ``chunks=False`` (static) is ``fun(*args)`` itself: beside a loop that is not
+    compacted (a ``fixed_steps`` scan runs at the batch's shapes, which the plain call has).
     """
+    if not chunks:
+        return fun(*args)
     fun_of, consts = hoist_closure(fun, *args)
     routed = jax.custom_batching.custom_vmap(lambda *a: fun_of(*a))
 

@@ -245,10 +245,6 @@ class _Loop(eqx.Module):
     result: RESULTS  # how it ends, when `stop`
 
 
-def _call(fun, *args):
-    return fun(*args)
-
-
 def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array, " n"], args: PyTree) -> Solution:
     """Run ``solver`` from ``y0`` (inside the box) on :func:`solvers._iterate.iterate`.
 
@@ -270,9 +266,8 @@ def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array,
 
     it = iterate(
         step,
-        # adaptive: the first linearization in lane-width chunks, the compacted loop's shapes
-        # (fixed steps: a scan over the whole batch, whose shapes the plain call has)
-        (_lanes.lane_map if not solver.fixed_steps else _call)(lambda y, a: loop(y, solver.init(problem, y, a)), y0, args),
+        # the first linearization at the compacted loop's shapes (lane-width chunks) when it is one
+        _lanes.lane_map(lambda y, a: loop(y, solver.init(problem, y, a)), y0, args, chunks=not solver.fixed_steps),
         done=lambda c: c.stop,
         max_steps=solver.max_steps,
         fixed_steps=solver.fixed_steps,

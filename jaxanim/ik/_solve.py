@@ -209,9 +209,8 @@ def _solve(skeleton, layout, targets, q0, translations, reference, options: IKOp
         R_world_sites = _site_rotations(skeleton, out, layout.site_idx)
         return (q, t) + _target_errors(layout, data.targets, out.site_positions(), R_world_sites, dtype)
 
-    # beside a compacted (adaptive) loop, in its lane-width chunks; a fixed-steps scan has the batch's shapes
-    q, t, pe, oe = finish(sol.value, data) if getattr(solver, "fixed_steps", False) else solvers.lane_map(
-        finish, sol.value, data)
+    # at the compacted loop's shapes (lane-width chunks) when the solve ran one
+    q, t, pe, oe = solvers.lane_map(finish, sol.value, data, chunks=not getattr(solver, "fixed_steps", False))
     success = ((sol.result == solvers.RESULTS.successful) & jnp.all(pe <= data.position_tolerance)
                & jnp.all(oe <= data.orientation_tolerance))
     return IKSolution(rot.quat_canonical(q), t, sol.result, sol.stats, pe, oe, success)
