@@ -1,5 +1,6 @@
 """Inverse kinematics: targets, Gauss-Newton / Levenberg-Marquardt solves with joint limits
-(:func:`solve_ik`, :func:`solve_ik_clip`), the CCD baseline and the JSON target format.
+(:func:`solve_ik`, :func:`solve_ik_clip`), the CCD baseline, the JSON target format, and the
+foot-contact cleanup built on them (:func:`clean_foot_contacts`).
 """
 
 from ..kinematics import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit, limit_violation as limit_violation
@@ -13,4 +14,10 @@ from ._solve import (
 )
 from ._ccd import (
     solve_ik_ccd as solve_ik_ccd,
+)
+from ._contacts import (
+    FootCleanup as FootCleanup,
+    clean_foot_contacts as clean_foot_contacts,
+    detect_foot_contacts as detect_foot_contacts,
+    foot_joints as foot_joints,
 )

@@ -14,12 +14,16 @@ pose is a T-pose standing on the ground plane ``y = 0``. The root ``Hips`` has t
 
 The motion is a periodic gait (one cycle per second, so a clip of a whole number of seconds loops
 in place): hip, knee and ankle flexion curves in antiphase between the legs, arm swing opposite to
-the legs with bent elbows, counter-rotating pelvis and chest, and a small lateral sway. The root
-height is set every frame so that the lowest point of the feet (the heel, the toe joint or the toe
-tip) touches the ground, which produces the pelvis bob, and the root moves forward at the constant
-speed at which the planted foot does not slide on average (about 1.2 m/s). The leg curves are
-smooth fits to rounded textbook joint angles of level walking. Everything is computed with NumPy
-in float64 from closed-form curves, so the clip is deterministic.
+the legs with bent elbows, counter-rotating pelvis and chest, and a small lateral sway. The leg
+curves are smooth fits to rounded textbook joint angles of level walking. The root moves forward at
+a constant speed (about 1.2 m/s), and the feet are planted: each toe joint (the ball of the foot)
+stays on the ground where it lands for the stance phase of its leg (10 % to 60 % of its cycle), the
+hip and knee angles being solved analytically to reach it, the heel not below the ball and the toes
+flat; in swing the toe travels to the next footprint on a minimum-jerk path with a 5 cm clearance.
+The root height follows the lowest point of the feet on the original curves, lowered where a planted
+foot would be out of reach (the pelvis bob). Everything is computed with NumPy in float64 from
+closed-form curves, so the clip is deterministic; the stance foot does not slide (the median speed of
+the lower toe joint is zero to round-off).
 
 The shipped file ``jaxanim/data/walk.bvh`` is ``make_default_clip()`` written with
 :func:`jaxanim.write_bvh`; regenerate it with ``python -m jaxanim.skeleton._default_clip``.
@@ -172,22 +176,26 @@ def _walking_speed() -> float:
     return float(-np.mean(v_rel[lowest, np.arange(p.size)]) / _CYCLE_SECONDS)
 
 
-def default_clip_channels(num_frames: int = 120, fps: float = 30.0) -> np.ndarray:
-    """The raw BVH channel values ``[frames, channels]`` of the default walk (float64, degrees).
+# --- planted feet ---------------------------------------------------------------------------------
+# The angle curves alone make the stance foot skate: the textbook angles do not carry the foot
+# backwards at exactly the root's constant speed. So the leg angles are corrected per frame. The toe
+# joint (the ball of the foot, on the sole) is pinned at ground level where it lands, for the stance
+# phase [_PIN_ON, _PIN_OFF] of its leg's cycle; the hip and knee are solved analytically (two-link IK
+# in the plane of the original knee) to reach it, and the root is lowered where a pinned foot would
+# be out of reach. In stance the foot keeps its world orientation with the pitch clamped so that the
+# heel is not below the ball, and the toes stay level (the toe joint flexes when the heel rises). In
+# swing the toe moves from one footprint to the next along a minimum-jerk path, with the original
+# clearance above the line between them.
+_PIN_ON, _PIN_OFF = 0.10, 0.60  # fractions of the leg's cycle (left heel strike at 0)
+_BLEND = 0.08  # cycle fraction over which the foot and toe corrections fade out and in
+_SWING_CLEARANCE = 0.05  # meters: the swinging foot's lowest point at mid-swing
+_REACH = 0.995  # the root is lowered so that no ankle is farther than this fraction of the leg
 
-    Args:
-        num_frames: number of frames (>= 1).
-        fps: frames per second (> 0).
 
-    Returns:
-        ``[num_frames, 66]`` channel values in the file order of :func:`default_skeleton`.
-    """
-    if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or num_frames < 1:
-        raise JaxanimError(f"num_frames: expected a positive integer, got {num_frames!r}")
-    if not (isinstance(fps, (int, float, np.floating, np.integer)) and math.isfinite(fps) and fps > 0):
-        raise JaxanimError(f"fps: expected a positive finite number, got {fps!r}")
+def _raw_pose(t):
+    """Root positions ``[n, 3]`` and the channel curves ``{joint: [Z, X, Y] degrees}`` before the
+    feet are planted, at the times ``t`` (seconds)."""
     names = [n for n, _, _ in _JOINTS]
-    t = np.arange(int(num_frames), dtype=np.float64) / float(fps)
     p_left = np.mod(t / _CYCLE_SECONDS, 1.0)  # left heel strike at p = 0
     p_right = np.mod(p_left + 0.5, 1.0)
     s = np.cos(2.0 * math.pi * p_left)  # +1 at left heel strike (left leg and right arm forward)
@@ -214,11 +222,176 @@ def default_clip_channels(num_frames: int = 120, fps: float = 30.0) -> np.ndarra
         rot[f"{side}UpLeg"] = [zero, -_gait_curve("hip_flexion", p), zero]
         rot[f"{side}Leg"] = [zero, _gait_curve("knee_flexion", p), zero]
         rot[f"{side}Foot"] = [zero, -_gait_curve("ankle_dorsiflexion", p), zero]
-
-    height = _root_height(p_left)
     sway = 0.02 * np.sin(2.0 * math.pi * p_left)  # towards the stance leg (the left is +X)
-    columns = [sway, height, _walking_speed() * t] + rot["Hips"]
-    for n in names[1:]:
+    root = np.stack([sway, _root_height(p_left), _walking_speed() * t], axis=1)
+    return root, rot
+
+
+def _euler_zxy(angles):
+    """``Rz Rx Ry`` of the BVH channel values ``[..., (Z, X, Y)]`` in degrees: ``[..., 3, 3]``."""
+    z, x, y = np.moveaxis(np.deg2rad(np.asarray(angles, dtype=np.float64)), -1, 0)
+    cz, sz, cx, sx, cy, sy = np.cos(z), np.sin(z), np.cos(x), np.sin(x), np.cos(y), np.sin(y)
+    return np.stack([
+        np.stack([cz * cy - sz * sx * sy, -sz * cx, cz * sy + sz * sx * cy], -1),
+        np.stack([sz * cy + cz * sx * sy, cz * cx, sz * sy - cz * sx * cy], -1),
+        np.stack([-cx * sy, sx, cx * cy], -1),
+    ], -2)
+
+
+def _zxy_from_matrix(R):
+    """The inverse of :func:`_euler_zxy` (degrees, X in [-90, 90]): ``[..., (Z, X, Y)]``."""
+    x = np.arcsin(np.clip(R[..., 2, 1], -1.0, 1.0))
+    z = np.arctan2(-R[..., 0, 1], R[..., 1, 1])
+    y = np.arctan2(-R[..., 2, 0], R[..., 2, 2])
+    return np.rad2deg(np.stack([z, x, y], -1))
+
+
+def _rotation_between(a, b):
+    """The smallest rotations ``[..., 3, 3]`` taking the unit vectors ``a`` to ``b`` (not opposite)."""
+    v = np.cross(a, b)
+    c = np.sum(a * b, axis=-1)[..., None, None]
+    K = np.zeros(v.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    K = K - np.swapaxes(K, -1, -2)
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def _level(R, w):
+    """``R`` turned so that its forward axis (``R e_z``) is a ``w``-blend of itself and ``level(R e_z)``."""
+    f = R @ np.array([0.0, 0.0, 1.0])
+    g = f * np.array([1.0, 0.0, 1.0])
+    g /= np.linalg.norm(g, axis=-1, keepdims=True)
+    g = f + w[:, None] * (g - f)
+    return _rotation_between(f, g / np.linalg.norm(g, axis=-1, keepdims=True)) @ R
+
+
+_LEGS = (("Left", 1.0, 0.0), ("Right", -1.0, 0.5))  # side, sign of its hip's X offset, phase offset
+
+
+def _leg_chain(R_hips, root, rot, side, sign):
+    """World frames of one leg: ``(hip [n,3], R_thigh, R_shin, R_foot [n,3,3], toe [n,3])``."""
+    R_th = R_hips @ _euler_zxy(np.stack(rot[f"{side}UpLeg"], -1))
+    R_sh = R_th @ _euler_zxy(np.stack(rot[f"{side}Leg"], -1))
+    R_ft = R_sh @ _euler_zxy(np.stack(rot[f"{side}Foot"], -1))
+    hip = root + R_hips @ np.array([sign * _HIP_WIDTH, -_HIP_DROP, 0.0])
+    ankle = hip + R_th @ np.array([0.0, -_THIGH, 0.0]) + R_sh @ np.array([0.0, -_SHIN, 0.0])
+    return hip, R_th, R_sh, R_ft, ankle + R_ft @ np.array([0.0, _TOE[1], _TOE[0]])
+
+
+def _original_toe(t, side, sign):
+    """The toe joint of one leg of :func:`_raw_pose` (world, ``[n, 3]``)."""
+    root, rot = _raw_pose(t)
+    return _leg_chain(_euler_zxy(np.stack(rot["Hips"], -1)), root, rot, side, sign)[4]
+
+
+def _toe_targets(t, side, sign, offset):
+    """The planted toe path of one leg at the times ``t``: ``(ground [n, 3], clearance [n], w [n])``.
+
+    ``ground`` is the toe's place on the ground (y = 0): its footprint in stance, a minimum-jerk path
+    to the next footprint in swing. ``clearance`` is how high the foot's lowest point is lifted in
+    swing (0 in stance, and from the heel strike on). ``w`` weighs the stance corrections of the
+    foot's and the toes' orientations (1 in stance, fading over ``_BLEND`` in swing).
+    """
+    phase = t / _CYCLE_SECONDS + offset
+    cycle = np.floor(phase - _PIN_ON)
+    p = phase - cycle  # in [_PIN_ON, _PIN_ON + 1)
+    t_on = (cycle + _PIN_ON - offset) * _CYCLE_SECONDS  # this cycle's landing
+    t_next = t_on + _CYCLE_SECONDS
+    ground = np.array([1.0, 0.0, 1.0])
+    pin0, pin1 = _original_toe(t_on, side, sign) * ground, _original_toe(t_next, side, sign) * ground
+    u = np.clip((p - _PIN_OFF) / (1.0 + _PIN_ON - _PIN_OFF), 0.0, 1.0)  # 0 at lift-off, 1 at landing
+    s = u**3 * (10.0 - 15.0 * u + 6.0 * u**2)  # minimum jerk from one footprint to the next
+    strike = (1.0 - _PIN_OFF) / (1.0 + _PIN_ON - _PIN_OFF)  # u of the heel strike
+    clearance = _SWING_CLEARANCE * np.sin(math.pi * np.minimum(u / strike, 1.0)) ** 2
+    gap = np.clip(np.minimum(p - _PIN_OFF, _PIN_ON + 1.0 - p) / _BLEND, 0.0, 1.0)
+    w = np.where(p <= _PIN_OFF, 1.0, 1.0 - gap * gap * (3.0 - 2.0 * gap))
+    return pin0 + s[:, None] * (pin1 - pin0), clearance, w
+
+
+def _planted_leg(t, root, rot, side, sign, offset):
+    """``(hip, ankle target, R_foot, R_toe, R_thigh, R_shin)`` of one planted leg (world frames)."""
+    R_hips = _euler_zxy(np.stack(rot["Hips"], -1))
+    hip, R_th, R_sh, R_ft, _ = _leg_chain(R_hips, root, rot, side, sign)
+    target, clearance, w = _toe_targets(t, side, sign, offset)
+    ey, ez = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    f = R_ft @ ez  # the sole's forward axis; pointing up: the heel is below the ball
+    f_new = f - w[:, None] * np.maximum(f @ ey, 0.0)[:, None] * ey
+    R_ft = _rotation_between(f, f_new / np.linalg.norm(f_new, axis=-1, keepdims=True)) @ R_ft
+    R_toe = _level(R_ft, w)
+    # the toe joint's height: the foot's lowest point (heel, ball or tip) at the clearance
+    heel = (R_ft @ ((_HEEL[0] - _TOE[0]) * ez))[:, 1]
+    tip = (R_toe @ (_TOE_TIP * ez))[:, 1]
+    target[:, 1] = clearance - np.minimum(np.minimum(heel, tip), 0.0)
+    ankle = target - R_ft @ np.array([0.0, _TOE[1], _TOE[0]])
+    return hip, ankle, R_ft, R_toe, R_th, R_sh
+
+
+def _root_drop(p_left):
+    """How far the root is lowered at the cycle fractions ``p_left`` so that every planted ankle is
+    within ``_REACH`` of its leg's length; smooth and periodic (from a grid over one cycle, dilated
+    then smoothed)."""
+    n = 1000
+    t = np.arange(n) / n * _CYCLE_SECONDS
+    root, rot = _raw_pose(t)
+    r = _REACH * (_THIGH + _SHIN)
+    drop = np.zeros(n)
+    for side, sign, offset in _LEGS:
+        hip, ankle, *_ = _planted_leg(t, root, rot, side, sign, offset)
+        d = ankle - hip
+        horizontal = np.sum(d[:, [0, 2]] ** 2, axis=1)
+        drop = np.maximum(drop, -d[:, 1] - np.sqrt(np.maximum(r * r - horizontal, 0.0)))
+    drop = np.maximum(drop, 0.0)
+    k = np.arange(-40, 41)  # dilate by 0.04 cycle, then a Gaussian of 0.012 cycle
+    drop = np.max(np.stack([np.roll(drop, i) for i in k]), axis=0)
+    g = np.exp(-0.5 * (k / 12.0) ** 2)
+    drop = sum(gi * np.roll(drop, i) for i, gi in zip(k, g / g.sum()))
+    return np.interp(np.mod(p_left, 1.0), np.arange(n + 1) / n, np.append(drop, drop[0]))
+
+
+def _plant_feet(t, root, rot):
+    """Replace ``rot``'s leg channels so that each toe joint follows :func:`_toe_targets`."""
+    down = np.array([0.0, -1.0, 0.0])
+    R_hips = _euler_zxy(np.stack(rot["Hips"], -1))
+    for side, sign, offset in _LEGS:
+        hip, ankle, R_ft, R_toe, R_th, R_sh = _planted_leg(t, root, rot, side, sign, offset)
+        d = ankle - hip
+        L = np.linalg.norm(d, axis=-1)
+        if np.any(L > _THIGH + _SHIN - 1e-9):
+            raise AssertionError(f"default clip: a planted {side} foot is out of reach")
+        dhat = d / L[:, None]
+        bend = R_th @ down  # the knee stays in the plane of the original thigh
+        n = bend - np.sum(bend * dhat, -1, keepdims=True) * dhat
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        a = (_THIGH**2 - _SHIN**2 + L**2) / (2.0 * L)
+        knee = hip + a[:, None] * dhat + np.sqrt(_THIGH**2 - a**2)[:, None] * n
+        R_th_new = _rotation_between(R_th @ down, (knee - hip) / _THIGH) @ R_th
+        R_sh_new = _rotation_between(R_sh @ down, (ankle - knee) / _SHIN) @ R_sh
+        T = lambda R: np.swapaxes(R, -1, -2)  # noqa: E731
+        for name, R in ((f"{side}UpLeg", T(R_hips) @ R_th_new), (f"{side}Leg", T(R_th_new) @ R_sh_new),
+                        (f"{side}Foot", T(R_sh_new) @ R_ft), (f"{side}ToeBase", T(R_ft) @ R_toe)):
+            rot[name] = list(np.moveaxis(_zxy_from_matrix(R), -1, 0))
+
+
+def default_clip_channels(num_frames: int = 120, fps: float = 30.0) -> np.ndarray:
+    """The raw BVH channel values ``[frames, channels]`` of the default walk (float64, degrees).
+
+    Args:
+        num_frames: number of frames (>= 1).
+        fps: frames per second (> 0).
+
+    Returns:
+        ``[num_frames, 66]`` channel values in the file order of :func:`default_skeleton`.
+    """
+    if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or num_frames < 1:
+        raise JaxanimError(f"num_frames: expected a positive integer, got {num_frames!r}")
+    if not (isinstance(fps, (int, float, np.floating, np.integer)) and math.isfinite(fps) and fps > 0):
+        raise JaxanimError(f"fps: expected a positive finite number, got {fps!r}")
+    t = np.arange(int(num_frames), dtype=np.float64) / float(fps)
+    root, rot = _raw_pose(t)
+    root[:, 1] -= _root_drop(t / _CYCLE_SECONDS)
+    _plant_feet(t, root, rot)
+    columns = [root[:, 0], root[:, 1], root[:, 2]]
+    for n, _, _ in _JOINTS:
         columns += rot[n]
     return np.stack(columns, axis=1)
 
