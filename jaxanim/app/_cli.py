@@ -1,4 +1,4 @@
-"""The ``jaxanim`` command line: ``info``, ``fk``, ``plot``, ``ik``, ``simulate`` and ``demo`` on BVH files.
+"""The ``jaxanim`` command line: ``info``, ``fk``, ``plot``, ``ik``, ``simulate``, ``track`` and ``demo`` on BVH files.
 
 Every command takes an optional BVH file and uses the shipped default clip (a walk, see
 :mod:`jaxanim.default_clip`) without one. Computation is float64 unless ``--float32`` is given:
@@ -48,6 +48,7 @@ from ..kinematics._fk import forward_kinematics  # noqa: F401  (the 0.1 ``jaxani
 from ..skeleton._bvh import write_bvh
 from ..skeleton._skeleton import POSITION_CHANNELS
 from . import _cache
+from ._track import add_track_parser
 from ._common import (  # the 0.1 module held these: ``jaxanim.cli`` still offers them
     _PROG as _PROG,
     _UI as _UI,
@@ -316,6 +317,8 @@ def _build_parser() -> argparse.ArgumentParser:
                         "(default file: OUT with .png; needs matplotlib)")
     p.set_defaults(func=_cmd_simulate)
 
+    add_track_parser(sub, common, file_help)
+
     p = sub.add_parser("demo", parents=[common], help="run the pipeline on the shipped clip, with timings",
                        description="Load the shipped walk clip, run forward kinematics of all frames in one batched "
                                    "call, write demo_fk.npz and demo_pose.png, and print a summary with timings "
@@ -334,7 +337,7 @@ def _version() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``jaxanim`` command line; returns the exit status (0 ok, 2 bad input, 1 a simulation that
-    did not finish: ``simulate``'s rollout ended ``nonfinite`` or ``exploded``).
+    did not finish: ``simulate``'s rollout ended ``nonfinite`` or ``exploded``, or ``track``'s character fell).
 
     Args:
         argv: the arguments after the program name (default ``sys.argv[1:]``).

@@ -1,0 +1,176 @@
+"""``jaxanim track``: track a clip with the physics character on joint torques only (no root force),
+by sampling-based control (:func:`jaxanim.tracking.samcon`), and write the simulated motion as BVH."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import JaxanimError
+from ..skeleton._bvh import write_bvh
+from ..skeleton._skeleton import Motion
+from ._common import _UI, _duration, _load, _num
+from ._simulate import _check_writable, _looped_motion
+
+_TRACK_CONTACTS = ("complementarity", "penalty")
+_PUSH_SECONDS = 0.2
+
+
+def _progress(ui: _UI):
+    """A ``progress(window, windows)`` callback that redraws one line on stderr."""
+    start = time.perf_counter()
+
+    def show(i: int, n: int) -> None:
+        if ui.quiet:
+            return
+        elapsed = time.perf_counter() - start
+        end = "\n" if i == n else ""
+        print(f"\rjaxanim: window {i}/{n}, {elapsed:.1f} s", end=end, file=sys.stderr, flush=True)
+
+    return show
+
+
+def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
+    from .. import character, tracking
+    from ..physics import make_ground
+
+    if args.float32:
+        raise JaxanimError("track: --float32 is not supported (the physics runs in float64)")
+    if not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise JaxanimError(f"--seconds: expected a positive finite number, got {args.seconds:g}")
+    if args.samples < 2:
+        raise JaxanimError(f"--samples: expected at least 2 samples per window, got {args.samples}")
+    if args.contact not in _TRACK_CONTACTS:
+        raise JaxanimError(f"--contact: expected one of {', '.join(_TRACK_CONTACTS)}, got {args.contact!r}")
+    if args.push is not None and not (math.isfinite(args.push) and args.push >= 0):
+        raise JaxanimError(f"--push: expected a non-negative force in newtons, got {args.push:g}")
+    clip = _load(args.file, ui, args.dtype)
+    options = tracking.TrackingOptions(samples=args.samples, elites=max(1, min(args.samples // 4, 32)))
+    if clip.motion.num_frames < options.window + 1:
+        raise JaxanimError(f"{clip.label} has {clip.motion.num_frames} frames: too short for one control window "
+                           f"of {options.window} frames (need at least {options.window + 1})")
+    out = args.out or f"{clip.stem}.track.bvh"
+    _check_writable("--out", out)
+    if args.plot is not None:
+        _check_writable("--plot", args.plot)
+        from ._plot import _import_matplotlib
+
+        _import_matplotlib(pyplot=False)
+    frame_time = float(clip.motion.frame_time)
+    frames = int(round(args.seconds / frame_time)) + 1
+    windows = (frames - 1) // options.window
+    if windows < 1:
+        raise JaxanimError(f"--seconds {args.seconds:g} is shorter than one control window "
+                           f"({options.window} frames = {_num(options.window * frame_time)} s)")
+    frames = windows * options.window + 1
+    if frames > clip.motion.num_frames:
+        ui.progress(f"looping the clip: {frames} frames from {clip.motion.num_frames}")
+    reference_motion = _looped_motion(clip.motion, frames)
+    t0 = time.perf_counter()
+    ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
+                         dtype=jnp.float64)
+    char, _ = character.build_character(clip.skeleton, ground=ground)
+    reference = tracking.tracking_reference(char, reference_motion)
+    ui.progress(f"tracking {_num((frames - 1) * frame_time)} s: {windows} windows of {options.window} frames, "
+                f"{options.samples} samples each, seed {args.seed}, {args.contact} contact, no root force")
+    result = tracking.samcon(char, reference, jax.random.PRNGKey(args.seed), options, progress=_progress(ui))
+    jax.block_until_ready(result)
+    seconds = time.perf_counter() - t0
+    status = "fell" if bool(result.fell) else "successful"
+    # the simulated poses, in the clip's frame (the reference was lifted onto the ground)
+    traj = result.trajectory
+    lift = np.asarray(reference.lift) / char.unit
+    q, t = jax.jit(jax.vmap(lambda s, r: character.character_pose(char, s, reference=r)))(traj, reference_motion.rotations)
+    t = t.at[:, 0, 1].add(-lift)
+    ui.progress(f"writing {out}")
+    write_bvh(out, clip.skeleton, Motion(q, t, clip.motion.frame_time))
+    joint_error = np.asarray(result.joint_error[1:])
+    root_error = np.asarray(result.root_error[1:])  # meters
+    samples = windows * options.samples
+    lines = [
+        f"wrote {out}: {frames} frames at {_num(1 / frame_time)} fps, {clip.skeleton.num_joints} joints",
+        f"tracking {status}: mean joint error {joint_error.mean():.4f} rad ({np.degrees(joint_error.mean()):.2f}°), "
+        f"max {joint_error.max():.4f} rad; mean horizontal root error {root_error.mean():.3f} m "
+        f"(max {root_error.max():.3f} m)",
+        f"time {_duration(seconds)} (compile included): {samples} samples, {samples / seconds:.0f} samples/s, "
+        f"{samples * options.window * options.steps_per_frame / seconds:.0f} character-steps/s",
+    ]
+    if args.push:
+        from ..character._build import root_body
+
+        root = root_body(char)
+        v = np.asarray(reference.states.linear_velocity[:, root])
+        forward = v.mean(axis=0) * np.array([1.0, 0.0, 1.0])
+        forward = forward / np.linalg.norm(forward) if np.linalg.norm(forward) > 1e-6 else np.array([0.0, 0.0, 1.0])
+        mid = 0.5 * (frames - 1) * frame_time
+        pushed = tracking.replay(char, reference, result, push=(root, args.push * forward, mid, _PUSH_SECONDS))
+        lines.append(f"push {args.push:g} N forward on the root body for {_PUSH_SECONDS} s at {mid:.2f} s "
+                     f"(open-loop controls): {'fell' if bool(pushed.fell) else 'stood'}")
+    if args.plot is not None:
+        _plot_tracking(args.plot, result, frame_time, char, f"{clip.path.name}: samcon, {options.samples} samples")
+        lines[0] += f"; plot {args.plot}"
+    ui.result("\n".join(lines))
+    if status == "fell":
+        ui.error("the character fell (its root went below 0.7 x the clip's lowest root height)")
+        return 1
+    return 0
+
+
+def _plot_tracking(path, result, frame_time: float, char, title: str) -> None:
+    """Root height against the clip's, the mean joint error and the horizontal root error over time."""
+    from ._plot import _import_matplotlib
+
+    _import_matplotlib(pyplot=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ..character._build import root_body
+
+    fig = Figure(figsize=(8.0, 6.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_h, ax_e, ax_r = fig.subplots(3, 1, sharex=True)
+    n = result.joint_error.shape[0]
+    t = np.arange(n) * frame_time
+    root = root_body(char)
+    ax_h.plot(t, np.asarray(result.trajectory.position[:, root, 1]), color="tab:blue", label="simulated")
+    ax_h.set_ylabel("root height (m)")
+    ax_h.set_title(title)
+    ax_e.plot(t, np.degrees(np.asarray(result.joint_error)), color="tab:red")
+    ax_e.set_ylabel("mean joint error (deg)")
+    ax_r.plot(t, np.asarray(result.root_error), color="tab:green")
+    ax_r.set_ylabel("root error (m)")
+    ax_r.set_xlabel("time (s)")
+    for ax in (ax_h, ax_e, ax_r):
+        ax.grid(True, alpha=0.3)
+    fig.savefig(path, dpi=100, format="png")
+
+
+def add_track_parser(sub, common, file_help: str) -> None:
+    p = sub.add_parser("track", parents=[common], help="track a clip on joint torques only (no root force; BVH out)",
+                       description="Build the physics character of the clip and search, window by window (0.1 s), "
+                                   "for stable-PD target corrections that make it reproduce the clip with joint "
+                                   "torques only: no root force or torque at any step (sampling-based control, "
+                                   "jaxanim.tracking.samcon). The clip is looped when --seconds is longer. Writes the "
+                                   "simulated motion as BVH at the clip's frame rate on the same skeleton, prints the "
+                                   "tracking errors, the time and samples/s, and exits with status 1 if the "
+                                   "character falls.")
+    p.add_argument("file", nargs="?", metavar="FILE.bvh", help=file_help)
+    p.add_argument("--seconds", "-s", type=float, required=True, metavar="S", help="duration to track")
+    p.add_argument("--out", "-o", metavar="OUT.bvh", help="output file (default: <name>.track.bvh here)")
+    p.add_argument("--samples", type=int, default=256, metavar="N", help="samples per window (default 256)")
+    p.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (default 0)")
+    p.add_argument("--contact", default="complementarity", metavar="MODEL",
+                   help="ground contact: complementarity (default) or penalty")
+    p.add_argument("--plot", default=None, metavar="P.png",
+                   help="draw the root height and the errors over time (needs matplotlib)")
+    p.add_argument("--push", type=float, default=None, metavar="NEWTONS",
+                   help="then replay the controls with a forward push of this force on the root body for 0.2 s "
+                        "at mid-clip, and report whether the character stands")
+    p.set_defaults(func=_cmd_track)
+

@@ -1,0 +1,403 @@
+r"""Tracking a clip with joint torques only: sampling-based control (the SAMCON family).
+
+The character (:func:`jaxanim.character.build_character`) is driven by stable PD towards the clip's
+joint targets (:func:`jaxanim.character.spd_targets`), each target corrected per control window by a
+rotation ``exp(c_j)`` (``c_j`` a rotation vector, right-multiplied: in the child body's frame).
+There is no root force or torque: the character has to balance on its joints and feet.
+
+:func:`samcon` searches the corrections window by window (Liu et al. 2010, "Sampling-based contact-
+rich motion control"). It keeps ``elites`` start states; in each window it draws ``samples``
+corrections around the mean of the last window's elite corrections, each sample starting from one
+elite state (round robin), simulates every sample over the window in one ``vmap``-ed rollout,
+scores it against the clip, and keeps the best ``elites`` end states with their corrections and
+parents. At the end the lineage of the best final state is traced back, and its corrections are
+replayed from the start: the replay is the result's trajectory (the simulation is deterministic,
+so it is the same motion the search found).
+
+The whole search is one ``lax.scan`` over the windows: it is a pure function of one problem
+(character, reference, key, options), compiled once per structure, and ``jax.vmap`` over keys,
+clips of the same length or options runs many searches at once. Runs are deterministic for a key.
+
+The cost of a frame ``f`` (summed over the window's frames) is
+
+``w_pose mean_j |e_j|^2 + w_position mean_b |x_b - x_b^ref|^2 + w_velocity mean_b |v_b - v_b^ref|^2
++ w_root angle(q_root, q_root^ref)^2``
+
+with ``e_j`` the joints' rotation errors (:func:`jaxanim.physics.joint_errors`), ``x_b`` and ``v_b``
+the bodies' centers of mass and velocities in meters and m/s, and the root body's orientation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from .. import rotations as rot
+from .._errors import JaxanimError
+from ..character._build import Character, _clip_targets, root_body
+from ..physics._bodies import BodyState
+from ..physics._contact import _geometry
+from ..physics._control import Control, StablePD
+from ..physics._joints import joint_errors
+from ..physics._step import _control_for, _step
+from ..skeleton._skeleton import Motion
+
+__all__ = [
+    "TrackingOptions", "TrackingReference", "TrackingResult", "TrackingStatus", "replay", "samcon", "tracking_reference",
+    "windows_of",
+]
+
+
+class TrackingStatus(eqx.Enumeration):
+    """Status of a tracking result, per problem under ``vmap``."""
+
+    successful = ""
+    fell = "The character fell: its root went below 0.7 times the clip's lowest root height."
+
+
+def _positive_int(name, value, low=1):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise JaxanimError(f"{name}: expected an int >= {low}, got {value!r}")
+    return int(value)
+
+
+class TrackingOptions(eqx.Module):
+    """The settings of :func:`samcon`.
+
+    Structure (static): ``samples`` per window (>= 2), ``elites`` kept (1 <= elites <= samples),
+    ``window`` frames per control window (3 at 30 fps: 0.1 s), ``steps_per_frame`` physics steps
+    per frame. Numbers (arrays, sweepable with ``vmap``): ``sigma`` the standard deviation of the
+    sampled corrections (radians, per axis), the stable-PD gains ``kp`` (N m / rad) and ``kd``
+    (N m s / rad), scalars or one per physics joint, and the cost weights.
+    """
+
+    samples: int = eqx.field(static=True, default=256)
+    elites: int = eqx.field(static=True, default=16)
+    window: int = eqx.field(static=True, default=3)
+    steps_per_frame: int = eqx.field(static=True, default=4)
+    sigma: Float[Array, ""] = eqx.field(default=0.15, converter=jnp.asarray)
+    kp: Float[Array, "#joints"] = eqx.field(default=1000.0, converter=jnp.asarray)
+    kd: Float[Array, "#joints"] = eqx.field(default=100.0, converter=jnp.asarray)
+    w_pose: Float[Array, ""] = eqx.field(default=1.0, converter=jnp.asarray)
+    w_position: Float[Array, ""] = eqx.field(default=10.0, converter=jnp.asarray)
+    w_velocity: Float[Array, ""] = eqx.field(default=0.1, converter=jnp.asarray)
+    w_root: Float[Array, ""] = eqx.field(default=2.0, converter=jnp.asarray)
+
+    def __check_init__(self):
+        _positive_int("samples", self.samples, 2)
+        _positive_int("elites", self.elites)
+        _positive_int("window", self.window)
+        _positive_int("steps_per_frame", self.steps_per_frame)
+        if self.elites > self.samples:
+            raise JaxanimError(f"elites: expected at most samples = {self.samples}, got {self.elites}")
+
+
+class TrackingReference(eqx.Module):
+    """What :func:`samcon` tracks: a clip as the character's targets and body states.
+
+    Attributes:
+        targets: ``[frames, joints, 4]`` stable-PD targets of the physics joints.
+        states: the bodies' reference states per frame (a :class:`~jaxanim.physics.BodyState` with
+            a leading frames axis), velocities by central differences.
+        frame_time: seconds.
+        lift: meters the clip was raised (or lowered) so that its feet stand on the ground.
+    """
+
+    targets: Float[Array, "frames joints 4"]
+    states: BodyState
+    frame_time: Float[Array, ""]
+    lift: Float[Array, ""]
+
+    @property
+    def num_frames(self) -> int:
+        return self.targets.shape[0]
+
+
+def _velocities(states: BodyState, dt: float) -> BodyState:
+    """The states with linear and angular velocities from central differences of the poses."""
+    v = jnp.gradient(states.position, dt, axis=0)
+    dq = rot.quat_multiply(states.orientation[2:], rot.quat_conjugate(states.orientation[:-2]))
+    w = rot.quat_to_rotvec(rot.quat_canonical(dq)) / (2.0 * dt)
+    dq0 = rot.quat_multiply(states.orientation[1:2], rot.quat_conjugate(states.orientation[:1]))
+    dq1 = rot.quat_multiply(states.orientation[-1:], rot.quat_conjugate(states.orientation[-2:-1]))
+    w = jnp.concatenate([rot.quat_to_rotvec(rot.quat_canonical(dq0)) / dt, w,
+                         rot.quat_to_rotvec(rot.quat_canonical(dq1)) / dt])
+    return BodyState(states.position, states.orientation, v, w, states.time)
+
+
+def tracking_reference(character: Character, motion: Motion, *, ground_clip: bool = True) -> TrackingReference:
+    """The reference of :func:`samcon` for a clip (file units) on a character.
+
+    Args:
+        character: the physics character (with a ground; :func:`~jaxanim.character.build_character`).
+        motion: the clip, at least 2 frames; loop it first for a longer run.
+        ground_clip: raise or lower the whole clip so that its feet stand on the ground: by the
+            median over frames of the lowest contact point's signed distance (a skeleton's joints
+            are inside the feet, whose soles the character adds below them).
+
+    Raises:
+        JaxanimError: fewer than 2 frames.
+    """
+    motion.check_skeleton(character.skeleton, "motion")
+    if motion.num_frames < 2:
+        raise JaxanimError(f"motion: expected at least 2 frames to track, got {motion.num_frames}")
+    dt = float(motion.frame_time)
+    targets, states = _clip_targets(character, motion.rotations, motion.translations)
+    lift = jnp.zeros((), states.position.dtype)
+    ground = character.model.ground
+    if ground_clip and ground.model != "none":
+        lowest = jax.vmap(lambda s: jnp.min(_geometry(ground, character.model.bodies, s)[2]))(states)
+        lift = -jnp.median(lowest)
+        states = eqx.tree_at(lambda s: s.position, states, states.position + lift * ground.normal[None, None, :])
+    states = _velocities(states, dt)
+    return TrackingReference(targets=targets, states=states, frame_time=jnp.asarray(dt, states.position.dtype), lift=lift)
+
+
+class TrackingResult(eqx.Module):
+    """The result of :func:`samcon`.
+
+    Attributes:
+        corrections: ``[windows, joints, 3]`` the rotation-vector correction of every physics
+            joint's target in each control window (radians).
+        trajectory: the simulated states at every frame (frame 0: the start; the frames the
+            windows cover, ``windows * window + 1``).
+        joint_error: ``[frames]`` mean joint rotation error against the clip (radians).
+        root_error: ``[frames]`` horizontal distance of the root body from the clip's (meters).
+        window_cost: ``[windows]`` the cost of each window along the kept lineage.
+        status: :class:`TrackingStatus`.
+        options: the options used.
+    """
+
+    corrections: Float[Array, "windows joints 3"]
+    trajectory: BodyState
+    joint_error: Float[Array, " frames"]
+    root_error: Float[Array, " frames"]
+    window_cost: Float[Array, " windows"]
+    status: TrackingStatus
+    options: TrackingOptions
+
+    @property
+    def fell(self) -> Bool[Array, ""]:
+        return self.status == TrackingStatus.fell
+
+
+def _problem(character: Character, reference: TrackingReference, options: TrackingOptions):
+    """The window simulation and its cost, closed over the model, the reference and the options."""
+    model = character.model
+    nj = model.joints.num_joints
+    root = root_body(character)
+    ref = reference.states
+    dtype = ref.position.dtype
+    h = reference.frame_time / options.steps_per_frame
+    kp = jnp.broadcast_to(options.kp.astype(dtype), (nj,))
+    kd = jnp.broadcast_to(options.kd.astype(dtype), (nj,))
+    normal = model.ground.normal
+
+    def frame_cost(s: BodyState, f):
+        e, _ = joint_errors(model.joints, s, reference.targets[f])
+        pose = jnp.mean(jnp.sum(e * e, -1))
+        pos = jnp.mean(jnp.sum((s.position - ref.position[f]) ** 2, -1))
+        vel = jnp.mean(jnp.sum((s.linear_velocity - ref.linear_velocity[f]) ** 2, -1))
+        r = rot.quat_distance(s.orientation[root], ref.orientation[f, root])
+        return options.w_pose * pose + options.w_position * pos + options.w_velocity * vel + options.w_root * r * r
+
+    def window(s: BodyState, f0, correction, push=None):
+        """Simulate the frames ``f0 + 1 .. f0 + window``: ``(end state, cost, states per frame)``."""
+        dq = rot.rotvec_to_quat(correction)
+
+        def frame(carry, i):
+            s, c = carry
+            f = f0 + i + 1
+            spd = StablePD(rot.quat_multiply(reference.targets[f], dq), kp, kd)
+
+            def physics_step(s, k):
+                force = None
+                if push is not None:  # (body, force [3], first step, last step) of the whole run
+                    body, fvec, first, last = push
+                    n = (f - 1) * options.steps_per_frame + k
+                    on = (n >= first) & (n < last)
+                    force = jnp.zeros_like(s.position).at[body].set(jnp.where(on, 1.0, 0.0) * fvec)
+                return _step(model, s, _control_for(model, Control(spd=spd, force=force)), h), None
+
+            s, _ = jax.lax.scan(physics_step, s, jnp.arange(options.steps_per_frame))
+            return (s, c + frame_cost(s, f)), s
+
+        (s, c), states = jax.lax.scan(frame, (s, jnp.zeros((), dtype)), jnp.arange(options.window))
+        return s, c, states
+
+    def start_state():
+        return jax.tree.map(lambda x: x[0], ref)
+
+    def errors(states: BodyState):
+        """``(mean joint error [frames], horizontal root error [frames])`` of frames 0 ..."""
+        F = states.position.shape[0]
+
+        def one(s, f):
+            e, _ = joint_errors(model.joints, s, reference.targets[f])
+            d = s.position[root] - ref.position[f, root]
+            d = d - (d @ normal) * normal
+            return jnp.mean(jnp.linalg.norm(e, axis=-1)), jnp.linalg.norm(d)
+
+        return jax.vmap(one)(states, jnp.arange(F))
+
+    def fell(states: BodyState):
+        height = states.position[:, root] @ normal
+        lowest = jnp.min(ref.position[:, root] @ normal)
+        return jnp.any(height < 0.7 * lowest)
+
+    return window, start_state, errors, fell, nj
+
+
+def _check(character, reference, options):
+    if not isinstance(character, Character):
+        raise JaxanimError(f"character: expected a jaxanim.character.Character, got {type(character).__name__}")
+    if not isinstance(reference, TrackingReference):
+        raise JaxanimError(f"reference: expected a TrackingReference (tracking_reference), got {type(reference).__name__}")
+    options = TrackingOptions() if options is None else options
+    if not isinstance(options, TrackingOptions):
+        raise JaxanimError(f"options: expected a TrackingOptions, got {type(options).__name__}")
+    windows = (reference.num_frames - 1) // options.window
+    if windows < 1:
+        raise JaxanimError(
+            f"reference: {reference.num_frames} frames are too short for one control window of {options.window} "
+            f"frames (need at least {options.window + 1})"
+        )
+    return options, windows
+
+
+def samcon(
+    character: Character,
+    reference: TrackingReference,
+    key: Array,
+    options: TrackingOptions | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> TrackingResult:
+    """Track ``reference`` with joint torques only by sampling-based control (see the module docstring).
+
+    Args:
+        character: the physics character, with a ground (:func:`~jaxanim.character.build_character`).
+        reference: :func:`tracking_reference` of the clip (loop the clip first for a longer run).
+        key: a ``jax.random`` key: the search is deterministic for a key.
+        options: :class:`TrackingOptions` (default ``TrackingOptions()``).
+        progress: ``progress(window, windows)`` called from the compiled search after every window
+            (host callback; for progress bars).
+
+    Returns:
+        :class:`TrackingResult`; ``(reference.num_frames - 1) // window`` windows are tracked.
+
+    Raises:
+        JaxanimError: a reference too short for one window, or arguments of the wrong type.
+    """
+    options, windows = _check(character, reference, options)
+    if progress is None:
+        return _samcon(character, reference, key, options, windows)
+    _PROGRESS.append(progress)
+    try:  # the callbacks run while the search does: wait for it before taking the callback away
+        return jax.block_until_ready(_samcon(character, reference, key, options, windows))
+    finally:
+        _PROGRESS.pop()
+
+
+_PROGRESS: list[Callable[[int, int], None]] = []  # the callbacks of the searches running now (innermost last)
+
+
+def _report(window, windows) -> None:
+    """The host side of the compiled search's progress callback: tell the current callback, if any
+    (a module-level function, so that a search with a callback and one without share a program)."""
+    if _PROGRESS:
+        _PROGRESS[-1](int(window), int(windows))
+
+
+@eqx.filter_jit
+def _samcon(character, reference, key, options: TrackingOptions, windows: int):
+    window, start_state, errors, fell, nj = _problem(character, reference, options)
+    N, K, W = options.samples, options.elites, options.window
+    start = start_state()
+    elites = jax.tree.map(lambda x: jnp.broadcast_to(x, (K,) + x.shape), start)
+    dtype = start.position.dtype
+
+    def per_window(carry, w):
+        elites, mean, key = carry
+        key, sub = jax.random.split(key)
+        corr = mean[None] + options.sigma.astype(dtype) * jax.random.normal(sub, (N, nj, 3), dtype)
+        parent = jnp.arange(N) % K
+        starts = jax.tree.map(lambda x: x[parent], elites)
+        ends, costs, _ = jax.vmap(window, in_axes=(0, None, 0))(starts, w * W, corr)
+        costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
+        _, best = jax.lax.top_k(-costs, K)
+        jax.debug.callback(_report, w + 1, windows)
+        return (jax.tree.map(lambda x: x[best], ends), jnp.mean(corr[best], axis=0), key), (corr[best], parent[best])
+
+    init = (elites, jnp.zeros((nj, 3), dtype), key)
+    _, (corrections, parents) = jax.lax.scan(per_window, init, jnp.arange(windows))
+
+    # the lineage of the best final state (elite 0), traced back through the parents
+    def back(i, x):
+        corr, parent = x
+        return parent[i], corr[i]
+
+    _, lineage = jax.lax.scan(back, jnp.zeros((), parents.dtype), (corrections, parents), reverse=True)
+    return _replay(character, reference, options, lineage, None)
+
+
+def _replay(character, reference, options, corrections, push):
+    """Simulate the corrections from the start; the :class:`TrackingResult`."""
+    window, start_state, errors, fell, nj = _problem(character, reference, options)
+    start = start_state()
+    W = options.window
+
+    def per_window(s, x):
+        w, corr = x
+        s, cost, states = window(s, w * W, corr, push)
+        return s, (cost, states)
+
+    windows = corrections.shape[0]
+    _, (costs, states) = jax.lax.scan(per_window, start, (jnp.arange(windows), corrections))
+    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a.reshape((-1,) + a.shape[2:])]), start, states)
+    joint_error, root_error = errors(traj)
+    status = TrackingStatus.where(fell(traj), TrackingStatus.fell, TrackingStatus.successful)
+    return TrackingResult(corrections=corrections, trajectory=traj, joint_error=joint_error, root_error=root_error,
+                          window_cost=costs, status=status, options=options)
+
+
+def replay(
+    character: Character,
+    reference: TrackingReference,
+    result: TrackingResult,
+    *,
+    push: tuple[int, Float[Array, "3"], float, float] | None = None,
+) -> TrackingResult:
+    """Simulate a result's corrections again from the start, optionally with a push.
+
+    Args:
+        character, reference: as given to :func:`samcon`.
+        result: a :class:`TrackingResult`.
+        push: ``(body, force [3] (N, world), start (s), duration (s))``: an external force on one
+            body's center of mass for a while (a disturbance: the controls do not change).
+
+    Returns:
+        The :class:`TrackingResult` of the replay (without a push it equals ``result``).
+    """
+    options, _ = _check(character, reference, result.options)
+    if push is not None:
+        body, force, start, duration = push
+        steps = options.steps_per_frame / float(reference.frame_time)
+        push = (int(body), jnp.asarray(force, reference.states.position.dtype),
+                jnp.asarray(round(float(start) * steps)), jnp.asarray(round(float(start + duration) * steps)))
+    return _replay_jit(character, reference, options, result.corrections, push)
+
+
+_replay_jit = eqx.filter_jit(_replay)
+
+
+def windows_of(reference: TrackingReference, options: TrackingOptions | None = None) -> int:
+    """How many control windows :func:`samcon` tracks for a reference."""
+    options = TrackingOptions() if options is None else options
+    return (reference.num_frames - 1) // options.window
+
