@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -140,7 +141,14 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
         out = jax.tree.map(lambda y: y.reshape(k * lanes, *y.shape[2:])[:axis_size], out)
         return out, jax.tree.map(lambda _: True, out)
 
-    return routed(*args, *consts)
+    # custom_vmap has no derivative rule: differentiated, it is fun itself (plainly vmapped)
+    differentiable = eqx.filter_custom_jvp(lambda *a: routed(*a))
+
+    @differentiable.def_jvp
+    def _jvp(primals, tangents):
+        return eqx.filter_jvp(fun_of, primals, tangents)
+
+    return differentiable(*args, *consts)
 
 
 def _axes(batched_tree):

@@ -75,6 +75,7 @@ from ._gradient_descent import GradientDescent
 from ._levenberg_marquardt import LevenbergMarquardt
 from ._ls_base import AbstractLeastSquaresSolver, _run
 from ._ls_problem import JacobianFn, ResidualFn, _Problem
+from ._implicit import attach_minimizer, stop_gradient_arrays
 from ._results import RESULTS, Solution
 
 __all__ = [
@@ -203,10 +204,16 @@ def _least_squares(fn, jac, solver, y0, args, lower, upper, stop, throw) -> Solu
             got = _fmt(jshape) if jshape is not None else type(jout).__name__
             raise ValueError(f"jac: expected jac(y, args) to return shape (m, n) = ({m}, {n}), got {got}")
     problem = _Problem(fn=fn, jac=jac, lower=lower, upper=upper, m=m, stop=stop)
+    # The loop is not differentiated: the answer carries the implicit derivative of the minimizer
+    # with respect to args instead (solvers._implicit; free unless differentiated).
+    y0, solve_args = jax.lax.stop_gradient(y0), stop_gradient_arrays(args)
     if isinstance(solver, _AbstractAdapter):
-        sol = solver._solve(problem, y0, args)
+        sol = solver._solve(problem, y0, solve_args)
     else:
-        sol = _run(solver, problem, problem.project(y0), args)
+        sol = _run(solver, problem, problem.project(y0), solve_args)
+    residual = (lambda y, a: fn(y, a)[0]) if jac is True else fn
+    value = attach_minimizer(sol.value, lambda y, a: 0.5 * jnp.sum(residual(y, a) ** 2), args, lower, upper)
+    sol = eqx.tree_at(lambda s: s.value, sol, value)
     if throw:
         sol = eqx.tree_at(
             lambda s: s.value, sol, sol.result.error_if(sol.value, sol.result != RESULTS.successful)

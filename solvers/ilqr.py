@@ -69,6 +69,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, PyTree
 
 from ._checks import _all_finite, _as_float, _fmt
 from ._ilqr_passes import Dynamics, StageCost, TerminalCost, _Problem
+from ._implicit import attach_minimizer, stop_gradient_arrays
 from ._iterate import iterate
 from ._results import RESULTS
 
@@ -305,6 +306,10 @@ def _iteration(problem: _Problem, x0, args, rtol, atol, s: _State) -> _State:
 
 
 def _solve(problem, x0, us, args, options: ILQROptions, throw) -> TrajectorySolution:
+    # The iterations are not differentiated: the controls carry the implicit derivative of the
+    # minimizer of the total cost (solvers._implicit), and the trajectory and cost that of the rollout.
+    x0_d, args_d = x0, args
+    x0, us, args = jax.lax.stop_gradient(x0), jax.lax.stop_gradient(us), stop_gradient_arrays(args)
     dtype = x0.dtype
     T, m = us.shape
     n = x0.shape[0]
@@ -340,7 +345,14 @@ def _solve(problem, x0, us, args, options: ILQROptions, throw) -> TrajectorySolu
             RESULTS.where(s.failed, RESULTS.no_descent, RESULTS.max_steps_reached),
         ),
     )
-    xs_out = s.xs
+    T, m = s.us.shape
+
+    def total(u, a):
+        return problem.rollout(a[0], u.reshape(T, m), a[1])[1]
+
+    bounds = (None, None) if not problem.bounded else (jnp.tile(problem.lower, T), jnp.tile(problem.upper, T))
+    us_out = attach_minimizer(s.us.reshape(T * m), total, (x0_d, args_d), *bounds).reshape(T, m)
+    xs_out, cost_out = _with_rollout_tangent(s.xs, s.cost, us_out, x0_d, args_d, rollout=problem.rollout)
     if throw:
         xs_out = result.error_if(xs_out, result != RESULTS.successful)
     stats = dict(
@@ -351,7 +363,21 @@ def _solve(problem, x0, us, args, options: ILQROptions, throw) -> TrajectorySolu
         regularization=s.mu,
         step_size=s.alpha,
     )
-    return TrajectorySolution(xs=xs_out, us=s.us, Ks=s.Ks, ks=s.ks, cost=s.cost, result=result, stats=stats)
+    return TrajectorySolution(xs=xs_out, us=us_out, Ks=s.Ks, ks=s.ks, cost=cost_out, result=result, stats=stats)
+
+
+@eqx.filter_custom_jvp
+def _with_rollout_tangent(xs, cost, us, x0, args, *, rollout):
+    """``(xs, cost)`` of the solution, differentiated as the rollout of ``us`` from ``x0``."""
+    return xs, cost
+
+
+@_with_rollout_tangent.def_jvp
+def _with_rollout_tangent_jvp(primals, tangents, *, rollout):
+    xs, cost, us, x0, args = primals
+    _, _, dus, dx0, dargs = tangents
+    _, (dxs, dcost) = eqx.filter_jvp(lambda u, x, a: rollout(x, u, a), (us, x0, args), (dus, dx0, dargs))
+    return (xs, cost), (dxs, dcost)
 
 
 @eqx.filter_jit

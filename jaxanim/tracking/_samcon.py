@@ -71,16 +71,20 @@ class TrackingOptions(eqx.Module):
 
     Structure (static): ``samples`` per window (>= 2), ``elites`` kept (1 <= elites <= samples),
     ``window`` frames per control window (3 at 30 fps: 0.1 s), ``steps_per_frame`` physics steps
-    per frame. Numbers (arrays, sweepable with ``vmap``): ``sigma`` the standard deviation of the
-    sampled corrections (radians, per axis), the stable-PD gains ``kp`` (N m / rad) and ``kd``
-    (N m s / rad), scalars or one per physics joint, and the cost weights.
+    per frame, ``lookahead`` frames simulated past a window with the same correction to score it
+    (a sample that will fall shortly after the window scores badly; its state at the window's end
+    is the one kept). Numbers (arrays, sweepable with ``vmap``): ``sigma`` the standard deviation
+    of the sampled corrections (radians, per axis; a scalar or one per physics joint), the
+    stable-PD gains ``kp`` (N m / rad) and ``kd`` (N m s / rad), scalars or one per physics joint,
+    and the cost weights.
     """
 
     samples: int = eqx.field(static=True, default=256)
     elites: int = eqx.field(static=True, default=16)
     window: int = eqx.field(static=True, default=3)
     steps_per_frame: int = eqx.field(static=True, default=4)
-    sigma: Float[Array, ""] = eqx.field(default=0.15, converter=jnp.asarray)
+    lookahead: int = eqx.field(static=True, default=6)
+    sigma: Float[Array, "#joints"] = eqx.field(default=0.15, converter=jnp.asarray)
     kp: Float[Array, "#joints"] = eqx.field(default=1000.0, converter=jnp.asarray)
     kd: Float[Array, "#joints"] = eqx.field(default=100.0, converter=jnp.asarray)
     w_pose: Float[Array, ""] = eqx.field(default=1.0, converter=jnp.asarray)
@@ -93,6 +97,7 @@ class TrackingOptions(eqx.Module):
         _positive_int("elites", self.elites)
         _positive_int("window", self.window)
         _positive_int("steps_per_frame", self.steps_per_frame)
+        _positive_int("lookahead", self.lookahead, 0)
         if self.elites > self.samples:
             raise JaxanimError(f"elites: expected at most samples = {self.samples}, got {self.elites}")
 
@@ -206,13 +211,17 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
         r = rot.quat_distance(s.orientation[root], ref.orientation[f, root])
         return options.w_pose * pose + options.w_position * pos + options.w_velocity * vel + options.w_root * r * r
 
-    def window(s: BodyState, f0, correction, push=None):
-        """Simulate the frames ``f0 + 1 .. f0 + window``: ``(end state, cost, states per frame)``."""
+    last = reference.num_frames - 1
+
+    def window(s: BodyState, f0, correction, push=None, lookahead: int = 0):
+        """Simulate the frames ``f0 + 1 .. f0 + window`` (and ``lookahead`` more with the same
+        correction, for the cost only): ``(state at the window's end, cost, states per frame of the
+        window)``."""
         dq = rot.rotvec_to_quat(correction)
 
         def frame(carry, i):
             s, c = carry
-            f = f0 + i + 1
+            f = jnp.minimum(f0 + i + 1, last)
             spd = StablePD(rot.quat_multiply(reference.targets[f], dq), kp, kd)
 
             def physics_step(s, k):
@@ -227,7 +236,10 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
             s, _ = jax.lax.scan(physics_step, s, jnp.arange(options.steps_per_frame))
             return (s, c + frame_cost(s, f)), s
 
-        (s, c), states = jax.lax.scan(frame, (s, jnp.zeros((), dtype)), jnp.arange(options.window))
+        (s, c), states = jax.lax.scan(frame, (s, jnp.zeros((), dtype)), jnp.arange(options.window + lookahead))
+        if lookahead:
+            states = jax.tree.map(lambda x: x[: options.window], states)
+            s = jax.tree.map(lambda x: x[-1], states)
         return s, c, states
 
     def start_state():
@@ -250,7 +262,7 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
         lowest = jnp.min(ref.position[:, root] @ normal)
         return jnp.any(height < 0.7 * lowest)
 
-    return window, start_state, errors, fell, nj
+    return window, start_state, frame_cost, errors, fell, nj
 
 
 def _check(character, reference, options):
@@ -316,7 +328,7 @@ def _report(window, windows) -> None:
 
 @eqx.filter_jit
 def _samcon(character, reference, key, options: TrackingOptions, windows: int):
-    window, start_state, errors, fell, nj = _problem(character, reference, options)
+    window, start_state, frame_cost, errors, fell, nj = _problem(character, reference, options)
     N, K, W = options.samples, options.elites, options.window
     start = start_state()
     elites = jax.tree.map(lambda x: jnp.broadcast_to(x, (K,) + x.shape), start)
@@ -325,45 +337,54 @@ def _samcon(character, reference, key, options: TrackingOptions, windows: int):
     def per_window(carry, w):
         elites, mean, key = carry
         key, sub = jax.random.split(key)
-        corr = mean[None] + options.sigma.astype(dtype) * jax.random.normal(sub, (N, nj, 3), dtype)
+        sigma = jnp.broadcast_to(options.sigma.astype(dtype), (nj,))[None, :, None]
+        corr = mean[None] + sigma * jax.random.normal(sub, (N, nj, 3), dtype)
         parent = jnp.arange(N) % K
         starts = jax.tree.map(lambda x: x[parent], elites)
-        ends, costs, _ = jax.vmap(window, in_axes=(0, None, 0))(starts, w * W, corr)
+        ends, costs, states = jax.vmap(lambda s, c: window(s, w * W, c, None, options.lookahead))(starts, corr)
         costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
         _, best = jax.lax.top_k(-costs, K)
         jax.debug.callback(_report, w + 1, windows)
-        return (jax.tree.map(lambda x: x[best], ends), jnp.mean(corr[best], axis=0), key), (corr[best], parent[best])
+        kept = jax.tree.map(lambda x: x[best], states)  # [K, W, ...]: the elites' frames, for the result
+        return (jax.tree.map(lambda x: x[best], ends), jnp.mean(corr[best], axis=0), key), (corr[best], parent[best], kept)
 
     init = (elites, jnp.zeros((nj, 3), dtype), key)
-    _, (corrections, parents) = jax.lax.scan(per_window, init, jnp.arange(windows))
+    _, (corrections, parents, kept) = jax.lax.scan(per_window, init, jnp.arange(windows))
 
     # the lineage of the best final state (elite 0), traced back through the parents
     def back(i, x):
-        corr, parent = x
-        return parent[i], corr[i]
+        corr, parent, states = x
+        return parent[i], (corr[i], jax.tree.map(lambda a: a[i], states))
 
-    _, lineage = jax.lax.scan(back, jnp.zeros((), parents.dtype), (corrections, parents), reverse=True)
-    return _replay(character, reference, options, lineage, None)
+    _, (lineage, states) = jax.lax.scan(back, jnp.zeros((), parents.dtype), (corrections, parents, kept), reverse=True)
+    return _result(reference, options, start, lineage, states, frame_cost, errors, fell)
+
+
+def _result(reference, options, start, corrections, states, frame_cost, errors, fell) -> TrackingResult:
+    """The result from the kept corrections and the states of every window's frames ``[windows, W, ...]``."""
+    windows, W = corrections.shape[0], options.window
+    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a.reshape((-1,) + a.shape[2:])]), start, states)
+    frames = jnp.arange(1, windows * W + 1)
+    costs = jax.vmap(frame_cost)(jax.tree.map(lambda a: a[1:], traj), frames).reshape(windows, W).sum(axis=1)
+    joint_error, root_error = errors(traj)
+    status = TrackingStatus.where(fell(traj), TrackingStatus.fell, TrackingStatus.successful)
+    return TrackingResult(corrections=corrections, trajectory=traj, joint_error=joint_error, root_error=root_error,
+                          window_cost=costs, status=status, options=options)
 
 
 def _replay(character, reference, options, corrections, push):
     """Simulate the corrections from the start; the :class:`TrackingResult`."""
-    window, start_state, errors, fell, nj = _problem(character, reference, options)
+    window, start_state, frame_cost, errors, fell, nj = _problem(character, reference, options)
     start = start_state()
     W = options.window
 
     def per_window(s, x):
         w, corr = x
-        s, cost, states = window(s, w * W, corr, push)
-        return s, (cost, states)
+        s, _, states = window(s, w * W, corr, push)
+        return s, states
 
-    windows = corrections.shape[0]
-    _, (costs, states) = jax.lax.scan(per_window, start, (jnp.arange(windows), corrections))
-    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a.reshape((-1,) + a.shape[2:])]), start, states)
-    joint_error, root_error = errors(traj)
-    status = TrackingStatus.where(fell(traj), TrackingStatus.fell, TrackingStatus.successful)
-    return TrackingResult(corrections=corrections, trajectory=traj, joint_error=joint_error, root_error=root_error,
-                          window_cost=costs, status=status, options=options)
+    _, states = jax.lax.scan(per_window, start, (jnp.arange(corrections.shape[0]), corrections))
+    return _result(reference, options, start, corrections, states, frame_cost, errors, fell)
 
 
 def replay(

@@ -1,0 +1,61 @@
+r"""Derivatives of a minimizer by the implicit function theorem.
+
+An iterative solver's loop (a ``lax.while_loop``) has no reverse-mode derivative, and its
+forward-mode one follows the iterations rather than the answer. At a minimizer ``y*(a)`` of
+``F(y, a)`` the gradient vanishes, ``g(y*(a), a) = grad_y F = 0``, so
+
+.. math::  H\, \dot y = -\partial_a g\; \dot a, \qquad H = \nabla^2_{yy} F,
+
+which :func:`attach_minimizer` attaches to the solver's answer as its JVP (``jax.grad`` transposes
+it). ``H`` is the exact Hessian (``jax.hessian`` of ``F``, second-order residual terms included),
+and the system is solved in the least-squares sense with the pseudo-inverse, so a minimizer that is
+not unique (a redundant IK chain without regularization) gets the minimum-norm derivative. With
+bounds, the variables at a bound stay there (``\dot y_i = 0``) and the system is solved for the
+others. The primal value is returned unchanged, and the rule costs nothing unless differentiated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+__all__ = ["attach_minimizer", "stop_gradient_arrays"]
+
+
+def stop_gradient_arrays(tree):
+    """``lax.stop_gradient`` on the floating-point arrays of a pytree; other leaves unchanged."""
+    return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_inexact_array(x) else x, tree)
+
+
+def attach_minimizer(y, objective: Callable, args, lower=None, upper=None):
+    """``y`` (a minimizer of ``objective(y, args)``, ``[n]``), carrying the derivative of the
+    minimizer with respect to ``args`` (see the module docstring); ``lower`` / ``upper`` are the
+    bounds the minimization respected, or ``None``."""
+    return _attach(y, args, lower, upper, objective=objective)
+
+
+@eqx.filter_custom_jvp
+def _attach(y, args, lower, upper, *, objective):
+    return y
+
+
+@_attach.def_jvp
+def _attach_jvp(primals, tangents, *, objective):
+    y, args, lower, upper = primals
+    _, dargs, _, _ = tangents  # the minimizer does not depend on where the solve started
+    y = jax.lax.stop_gradient(y)
+    if dargs is None or all(t is None for t in jax.tree.leaves(dargs, is_leaf=lambda x: x is None)):
+        return y, jnp.zeros_like(y)
+    grad = jax.grad(objective)
+    _, b = eqx.filter_jvp(lambda a: grad(y, a), (args,), (dargs,))
+    H = jax.hessian(objective)(y, args)
+    H = 0.5 * (H + H.T)
+    if lower is not None:
+        free = (y > lower) & (y < upper)
+        H = jnp.where(free[:, None] & free[None, :], H, jnp.eye(y.shape[0], dtype=H.dtype))
+        b = jnp.where(free, b, 0.0)
+    dy = -jnp.linalg.pinv(H, hermitian=True) @ b
+    return y, dy

@@ -1,0 +1,112 @@
+"""``jax.grad`` through forward kinematics and through the IK solution matches central finite
+differences (issue 12's gradient line; the DARE's is in test_lqr, a rollout's through contact in
+test_physics_gradients).
+
+The IK solution's derivative is the implicit one of the least-squares minimizer
+(solvers._implicit): the loop is not differentiated. The problems have a unique minimizer (a
+regularization and a fixed root translation), and the solves run to a tight tolerance so that the
+finite differences (steps 1e-3 and 5e-4, Richardson-extrapolated) resolve the solution's change.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxanim
+import solvers
+from jaxanim import ik
+
+from .helpers import random_pose, small_skeleton
+
+_RTOL = 1e-5
+
+
+def _central(f, x, eps, richardson=False):
+    """Central differences of ``f`` at ``x``; with ``richardson``, extrapolated from the steps ``eps``
+    and ``eps / 2`` (error O(eps^4) instead of O(eps^2))."""
+    x = np.asarray(x, np.float64)
+
+    def one(h):
+        out = []
+        for i in range(x.size):
+            d = np.zeros_like(x)
+            d.flat[i] = h
+            out.append((float(f(jnp.asarray(x + d))) - float(f(jnp.asarray(x - d)))) / (2 * h))
+        return np.array(out).reshape(x.shape)
+
+    return (4.0 * one(eps / 2) - one(eps)) / 3.0 if richardson else one(eps)
+
+
+def test_fk_gradient_matches_finite_differences():
+    skel = small_skeleton()
+    q, t = random_pose(skel, 3)
+    w = jnp.linspace(-1.0, 2.0, 3 * skel.num_joints).reshape(skel.num_joints, 3)
+
+    def f(rotvecs):
+        out = jaxanim.forward_kinematics(skel, jaxanim.rotations.rotvec_to_quat(rotvecs), t)
+        return jnp.sum(out.positions * w) + jnp.sum(out.end_site_positions ** 2) + jnp.sum(out.rotations[:, 0, 1])
+
+    v = jaxanim.rotations.quat_to_rotvec(q)
+    grad = np.asarray(jax.jit(jax.grad(f))(v))
+    fd = _central(jax.jit(f), v, 1e-6)
+    np.testing.assert_allclose(grad, fd, rtol=_RTOL, atol=1e-8)
+
+
+@pytest.mark.parametrize("regularization", [1e-3, 1e-1])
+def test_ik_solution_gradient_matches_finite_differences(regularization):
+    skel = small_skeleton()
+    q0, t0 = random_pose(skel, 0)
+    goal = jaxanim.forward_kinematics(skel, random_pose(skel, 1)[0], t0).end_site_positions[0]
+    weights = jnp.arange(q0.size, dtype=q0.dtype).reshape(q0.shape) / 10.0
+    solver = solvers.LevenbergMarquardt(rtol=1e-13, atol=1e-15, max_steps=200)
+
+    def f(g):
+        sol = ik.solve_ik(skel, ik.Target(skel.end_site_names[0], position=g), q0, t0, solver=solver,
+                          regularization=jnp.asarray(regularization), stop_at_tolerance=False,
+                          root_translation="fixed")
+        return jnp.sum(sol.rotations * weights)
+
+    grad = np.asarray(jax.jit(jax.grad(f))(goal))
+    fd = _central(jax.jit(f), goal, 1e-3, richardson=True)
+    assert np.abs(fd).max() > 1e-2  # the solution does depend on the target
+    np.testing.assert_allclose(grad, fd, rtol=_RTOL, atol=1e-8)
+
+
+def test_ilqr_solution_gradient_matches_finite_differences():
+    """The pendulum swing towards upright (solvers.problems), differentiated in the start state and a
+    cost weight passed in ``args``: the optimal controls and the optimal cost."""
+    T, h = 30, 0.05
+
+    def dynamics(x, u, t, args):
+        th, w = x
+        return jnp.stack([th + h * w, w + h * (-9.81 * jnp.sin(th) + u[0] - 0.1 * w)])
+
+    def cost(x, u, t, args):
+        return 0.5 * args * (x[0] - jnp.pi) ** 2 * h + 0.5 * 0.1 * u[0] ** 2 * h
+
+    def f(p):
+        sol = solvers.ilqr(dynamics, cost, p[:2], jnp.zeros((T, 1)), args=p[2], terminal_cost=None, rtol=1e-14)
+        return jnp.sum(sol.us[:, 0] * jnp.linspace(1.0, 2.0, T)) + 0.3 * sol.cost + jnp.sum(sol.xs[-1])
+
+    p = jnp.array([0.3, -0.2, 2.0])
+    grad = np.asarray(jax.jit(jax.grad(f))(p))
+    fd = _central(jax.jit(f), p, 1e-3, richardson=True)
+    assert np.abs(fd).min() > 1e-3
+    # iLQR stops on the predicted decrease (< 16 eps J), which leaves the controls ~1e-7 from the
+    # optimum: over steps of 1e-3 that is ~1e-4 of noise in the differences, hence 1e-3 here
+    np.testing.assert_allclose(grad, fd, rtol=1e-3, atol=1e-8)
+    # the optimal cost: the envelope theorem, dJ*/dp = dJ/dp at fixed u* (to the optimality of u*)
+    sol = solvers.ilqr(dynamics, cost, p[:2], jnp.zeros((T, 1)), args=p[2], rtol=1e-14)
+    total = lambda q: solvers.ilqr(dynamics, cost, q[:2], jnp.zeros((T, 1)), args=q[2], rtol=1e-14).cost  # noqa: E731
+
+    def fixed_u(q):
+        x, J = q[:2], 0.0
+        for t in range(T):
+            J = J + cost(x, sol.us[t], t, q[2])
+            x = dynamics(x, sol.us[t], t, q[2])
+        return J
+
+    np.testing.assert_allclose(np.asarray(jax.grad(total)(p)), np.asarray(jax.grad(fixed_u)(p)), rtol=1e-4)
