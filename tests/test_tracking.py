@@ -1,7 +1,7 @@
 """Tracking without root force (jaxanim.tracking.samcon, ``jaxanim track``), issue 13 items 1-3 so far.
 
 One small search shape is compiled for the whole file: the shipped walk's first second, 10 windows
-of 0.1 s, 16 samples and 4 elites; the CLI runs the same shape. What is checked against an
+of 0.1 s, 16 samples, 4 elites and the per-joint spreads of joint_sigma; the CLI runs the same. What is checked against an
 independent reference: the search beats the clip's own uncorrected stable-PD targets (the open-loop
 baseline, the same simulator) on the tracking cost; the replay of the kept corrections reproduces
 the cost the search recorded (the simulation is deterministic); vmap over seeds equals a loop.
@@ -20,7 +20,9 @@ from jaxanim.app import _cli as cli
 from jaxanim.app._simulate import _looped_motion
 from jaxanim.physics import make_ground
 
-_OPTIONS = dict(samples=16, elites=4)
+def _options(char):
+    """The options of every search here, the CLI's for --samples 16 (one compiled program)."""
+    return tracking.TrackingOptions(samples=16, elites=4, sigma=tracking.joint_sigma(char))
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +37,7 @@ def problem():
 @pytest.fixture(scope="module")
 def result(problem):
     char, ref, _ = problem
-    return tracking.samcon(char, ref, jax.random.PRNGKey(0), tracking.TrackingOptions(**_OPTIONS))
+    return tracking.samcon(char, ref, jax.random.PRNGKey(0), _options(char))
 
 
 def test_the_reference_stands_on_the_ground(problem):
@@ -63,7 +65,7 @@ def test_search_beats_the_uncorrected_targets_and_replays_exactly(problem, resul
 
 def test_search_is_deterministic_and_vmap_over_seeds_equals_a_loop(problem, result):
     char, ref, _ = problem
-    opts = tracking.TrackingOptions(**_OPTIONS)
+    opts = _options(char)
     keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
     batched = jax.vmap(lambda k: tracking.samcon(char, ref, k, opts))(keys)
     np.testing.assert_array_equal(np.asarray(batched.corrections[0]), np.asarray(result.corrections))

@@ -8,6 +8,7 @@ import math
 import sys
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -51,7 +52,7 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     if args.push is not None and not (math.isfinite(args.push) and args.push >= 0):
         raise JaxanimError(f"--push: expected a non-negative force in newtons, got {args.push:g}")
     clip = _load(args.file, ui, args.dtype)
-    options = tracking.TrackingOptions(samples=args.samples, elites=max(1, min(args.samples // 4, 32)))
+    options = tracking.TrackingOptions(samples=args.samples, elites=max(1, min(args.samples // 4, 32)))  # sigma below
     if clip.motion.num_frames < options.window + 1:
         raise JaxanimError(f"{clip.label} has {clip.motion.num_frames} frames: too short for one control window "
                            f"of {options.window} frames (need at least {options.window + 1})")
@@ -76,6 +77,7 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
                          dtype=jnp.float64)
     char, _ = character.build_character(clip.skeleton, ground=ground)
+    options = eqx.tree_at(lambda o: o.sigma, options, tracking.joint_sigma(char))
     reference = tracking.tracking_reference(char, reference_motion)
     ui.progress(f"tracking {_num((frames - 1) * frame_time)} s: {windows} windows of {options.window} frames, "
                 f"{options.samples} samples each, seed {args.seed}, {args.contact} contact, no root force")
@@ -99,7 +101,8 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         f"max {joint_error.max():.4f} rad; mean horizontal root error {root_error.mean():.3f} m "
         f"(max {root_error.max():.3f} m)",
         f"time {_duration(seconds)} (compile included): {samples} samples, {samples / seconds:.0f} samples/s, "
-        f"{samples * options.window * options.steps_per_frame / seconds:.0f} character-steps/s",
+        f"{samples * (options.window + options.lookahead) * options.steps_per_frame / seconds:.0f} character-steps/s "
+        f"(each sample: {options.window} frames and {options.lookahead} of look-ahead)",
     ]
     if args.push:
         from ..character._build import root_body
@@ -113,7 +116,8 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         lines.append(f"push {args.push:g} N forward on the root body for {_PUSH_SECONDS} s at {mid:.2f} s "
                      f"(open-loop controls): {'fell' if bool(pushed.fell) else 'stood'}")
     if args.plot is not None:
-        _plot_tracking(args.plot, result, frame_time, char, f"{clip.path.name}: samcon, {options.samples} samples")
+        _plot_tracking(args.plot, result, reference, frame_time, char,
+                       f"{clip.path.name}: samcon, {options.samples} samples, no root force")
         lines[0] += f"; plot {args.plot}"
     ui.result("\n".join(lines))
     if status == "fell":
@@ -122,7 +126,7 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     return 0
 
 
-def _plot_tracking(path, result, frame_time: float, char, title: str) -> None:
+def _plot_tracking(path, result, reference, frame_time: float, char, title: str) -> None:
     """Root height against the clip's, the mean joint error and the horizontal root error over time."""
     from ._plot import _import_matplotlib
 
@@ -138,8 +142,10 @@ def _plot_tracking(path, result, frame_time: float, char, title: str) -> None:
     n = result.joint_error.shape[0]
     t = np.arange(n) * frame_time
     root = root_body(char)
+    ax_h.plot(t, np.asarray(reference.states.position[:n, root, 1]), color="0.6", label="clip")
     ax_h.plot(t, np.asarray(result.trajectory.position[:, root, 1]), color="tab:blue", label="simulated")
     ax_h.set_ylabel("root height (m)")
+    ax_h.legend(loc="lower right")
     ax_h.set_title(title)
     ax_e.plot(t, np.degrees(np.asarray(result.joint_error)), color="tab:red")
     ax_e.set_ylabel("mean joint error (deg)")

@@ -6,6 +6,7 @@ from ._samcon import (
     TrackingReference as TrackingReference,
     TrackingResult as TrackingResult,
     TrackingStatus as TrackingStatus,
+    joint_sigma as joint_sigma,
     replay as replay,
     samcon as samcon,
     tracking_reference as tracking_reference,
