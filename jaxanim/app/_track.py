@@ -27,12 +27,16 @@ def _progress(ui: _UI):
     """A ``progress(window, windows)`` callback that redraws one line on stderr."""
     start = time.perf_counter()
 
+    tty = sys.stderr.isatty()
+
     def show(i: int, n: int) -> None:
         if ui.quiet:
             return
         elapsed = time.perf_counter() - start
-        end = "\n" if i == n else ""
-        print(f"\rjaxanim: window {i}/{n}, {elapsed:.1f} s", end=end, file=sys.stderr, flush=True)
+        if tty:  # one line, redrawn
+            print(f"\rjaxanim: window {i}/{n}, {elapsed:.1f} s", end="\n" if i == n else "", file=sys.stderr, flush=True)
+        elif i == n or i % max(1, n // 10) == 0:  # a log: a line every tenth of the run
+            print(f"jaxanim: window {i}/{n}, {elapsed:.1f} s", file=sys.stderr, flush=True)
 
     return show
 
