@@ -51,13 +51,13 @@ class FootCleanup(eqx.Module):
     success: Bool[Array, " frames"]
 
 
+_forward_kinematics = eqx.filter_jit(forward_kinematics)
+
+
 def _rest_positions(skeleton: Skeleton) -> np.ndarray:
     """World joint positions of the rest pose (identity rotations, OFFSETs), ``[joints, 3]``."""
-    off = np.asarray(skeleton.offsets, dtype=np.float64)
-    pos = np.zeros_like(off)
-    for j, p in enumerate(skeleton.parents):
-        pos[j] = off[j] if p < 0 else pos[p] + off[j]
-    return pos
+    rest = skeleton.rest_rotations(jnp.asarray(skeleton.offsets).dtype)
+    return np.asarray(_forward_kinematics(skeleton, rest, None).positions, dtype=np.float64)
 
 
 def foot_joints(skeleton: Skeleton, *, up: int = 1, count: int = 2) -> tuple[str, ...]:

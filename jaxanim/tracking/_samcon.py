@@ -291,7 +291,7 @@ def _check(character, reference, options):
     options = TrackingOptions() if options is None else options
     if not isinstance(options, TrackingOptions):
         raise JaxanimError(f"options: expected a TrackingOptions, got {type(options).__name__}")
-    windows = (reference.num_frames - 1) // options.window
+    windows = windows_of(reference, options)
     if windows < 1:
         raise JaxanimError(
             f"reference: {reference.num_frames} frames are too short for one control window of {options.window} "
