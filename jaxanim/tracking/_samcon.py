@@ -245,9 +245,9 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
             def physics_step(s, k):
                 force = None
                 if push is not None:  # (body, force [3], first step, last step) of the whole run
-                    body, fvec, first, last = push
+                    body, fvec, first, stop = push
                     n = (f - 1) * options.steps_per_frame + k
-                    on = (n >= first) & (n < last)
+                    on = (n >= first) & (n < stop)
                     force = jnp.zeros_like(s.position).at[body].set(jnp.where(on, 1.0, 0.0) * fvec)
                 return _step(model, s, _control_for(model, Control(spd=spd, force=force)), h), None
 
