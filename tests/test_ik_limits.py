@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -19,7 +21,7 @@ from jaxanim import rotations as rot
 from jaxanim.limits import EulerLimit, SwingTwistLimit, _charts
 
 from .conftest import shared_data_dir
-from .helpers import jitted_limit_violation, random_pose, shared_clip, small_skeleton
+from .helpers import jitted_fk, jitted_limit_violation, random_pose, shared_clip, small_skeleton
 
 _VIOLATION_ATOL = 1e-12  # hard limits hold exactly up to round-off of the quaternion <-> chart maps
 
@@ -103,13 +105,18 @@ def test_swing_twist_violation_matches_geometry():
 
 
 def _setup(skel, targets, q, t, *, limits=(), root_translation="free", frozen=(), regularization=1e-3):
-    """The residual ``(fn, jac)``, ``y0``, ``bounds`` and pose map that solve_ik builds (hard limits)."""
+    """The residual ``(fn, jac)``, ``y0``, ``bounds`` and pose map that solve_ik builds (hard limits).
+
+    The setup is one compiled program, and the residual, Jacobian and pose another (eager, each op
+    of the setup and of the pose map would compile on its own: seconds)."""
     layout = _problem._layout(skel, targets, None, frozen, root_translation, limits, "hard")
     reg_w = jnp.full(skel.num_joints, regularization)
-    data, y0, bounds = _problem._setup(skel, layout, targets, q, t, q, t, reg_w, limits, 1.0)
-    both = jax.jit(_problem._residual)
-    return dict(fn=lambda y: both(y, data)[0], jac=lambda y: both(y, data)[1], y0=y0, bounds=bounds,
-                pose=lambda y: _problem._pose(y, data))
+    # ``skel`` a constant: a swing-twist limit without an axis takes it from the concrete offsets
+    data, y0, bounds = eqx.filter_jit(functools.partial(_problem._setup, skel))(
+        layout, targets, q, t, q, t, reg_w, limits, 1.0)
+    every = jax.jit(lambda y, data: (_problem._residual(y, data), _problem._pose(y, data)))
+    return dict(fn=lambda y: every(y, data)[0][0], jac=lambda y: every(y, data)[0][1], y0=y0, bounds=bounds,
+                pose=lambda y: every(y, data)[1])
 
 
 @pytest.fixture(scope="module")
@@ -122,7 +129,7 @@ def limited_problem():
               SwingTwistLimit("forearm", 0.4, (-0.2, 0.2)))
     q_goal = q.at[3].set(rot.euler_to_quat(jnp.asarray([0.45, 0.6, 0.1]), "ZXY"))
     q_goal = q_goal.at[4].set(rot.rotvec_to_quat(jnp.asarray([0.1, 0.5, 0.3])))
-    out = jaxanim.forward_kinematics(skel, q_goal, t)
+    out = jitted_fk(skel, q_goal, t)
     targets = (ik.Target("forearm_End", out.end_site_positions[1], rot.matrix_to_quat(out.rotations[4]), weight=1.0),)
     kw = dict(limits=limits, root_translation="fixed", frozen=("leg", "spine", "head", "root"))
     # the hard-limit and the unlimited solutions, shared by the tests (each solve_ik call compiles)
@@ -160,7 +167,7 @@ def test_soft_limits_approach_the_hard_solution(limited_problem):
     def soft(w):
         return ik.solve_ik(skel, targets, q, t, regularization=1e-3, limit_mode="soft", limit_weight=w, **kw)
 
-    sols = jax.vmap(soft)(jnp.asarray([0.0, 1e2, 1e4]))
+    sols = jax.jit(jax.vmap(soft))(jnp.asarray([0.0, 1e2, 1e4]))  # one program (eager vmap: op by op)
     viol = jnp.max(jitted_limit_violation(skel, batched=True)(kw["limits"], sols.rotations), axis=-1)
     assert np.all(np.diff(np.asarray(viol)) < 0), viol  # stiffer penalty, smaller violation
     assert float(viol[-1]) < 1e-4  # ~1/weight: 1.5e-5 here
@@ -189,7 +196,9 @@ def test_hard_euler_limits_on_cmu_batch():
 
     f = jax.jit(jax.vmap(solve, in_axes=(0, None)))
     violation = jitted_limit_violation(skel, batched=True)
-    for width, reachable in ((np.pi / 4, True), (np.radians(20), False)):
+    # both widths NumPy float64: one compile (a Python float is weakly typed, np.float64 is not, and
+    # each would compile the solve on its own)
+    for width, reachable in ((np.radians(45.0), True), (np.radians(20.0), False)):
         sol = f(batch, width)
         limits = boxes(width)
         v = violation(limits, sol.rotations)
