@@ -56,9 +56,15 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     if args.push is not None and not (math.isfinite(args.push) and args.push >= 0):
         raise JaxanimError(f"--push: expected a non-negative force in newtons, got {args.push:g}")
     clip = _load(args.file, ui, args.dtype)
+    if not 0 <= args.from_frame < clip.motion.num_frames:
+        raise JaxanimError(f"--from-frame: expected a frame of {clip.label} in 0 .. {clip.motion.num_frames - 1}, "
+                           f"got {args.from_frame}")
+    motion = clip.motion
+    if args.from_frame:
+        motion = Motion(motion.rotations[args.from_frame:], motion.translations[args.from_frame:], motion.frame_time)
     options = tracking.TrackingOptions(samples=args.samples, elites=max(1, min(args.samples // 4, 32)))  # sigma below
-    if clip.motion.num_frames < options.window + 1:
-        raise JaxanimError(f"{clip.label} has {clip.motion.num_frames} frames: too short for one control window "
+    if motion.num_frames < options.window + 1:
+        raise JaxanimError(f"{clip.label} has {motion.num_frames} frames from frame {args.from_frame}: too short for one control window "
                            f"of {options.window} frames (need at least {options.window + 1})")
     out = args.out or f"{clip.stem}.track.bvh"
     _check_writable("--out", out)
@@ -67,16 +73,16 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         from ._plot import _import_matplotlib
 
         _import_matplotlib(pyplot=False)
-    frame_time = float(clip.motion.frame_time)
+    frame_time = float(motion.frame_time)
     frames = int(round(args.seconds / frame_time)) + 1
     windows = (frames - 1) // options.window
     if windows < 1:
         raise JaxanimError(f"--seconds {args.seconds:g} is shorter than one control window "
                            f"({options.window} frames = {_num(options.window * frame_time)} s)")
     frames = windows * options.window + 1
-    if frames > clip.motion.num_frames:
-        ui.progress(f"looping the clip: {frames} frames from {clip.motion.num_frames}")
-    reference_motion = _looped_motion(clip.motion, frames)
+    if frames > motion.num_frames:
+        ui.progress(f"looping the clip: {frames} frames from {motion.num_frames}")
+    reference_motion = _looped_motion(motion, frames)
     t0 = time.perf_counter()
     ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
                          dtype=jnp.float64)
@@ -95,7 +101,7 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     q, t = jax.jit(jax.vmap(lambda s, r: character.character_pose(char, s, reference=r)))(traj, reference_motion.rotations)
     t = t.at[:, 0, 1].add(-lift)
     ui.progress(f"writing {out}")
-    write_bvh(out, clip.skeleton, Motion(q, t, clip.motion.frame_time))
+    write_bvh(out, clip.skeleton, Motion(q, t, motion.frame_time))
     joint_error = np.asarray(result.joint_error[1:])
     root_error = np.asarray(result.root_error[1:])  # meters
     samples = windows * options.samples
@@ -109,16 +115,7 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         f"(each sample: {options.window} frames and {options.lookahead} of look-ahead)",
     ]
     if args.push:
-        from ..character._build import root_body
-
-        root = root_body(char)
-        v = np.asarray(reference.states.linear_velocity[:, root])
-        forward = v.mean(axis=0) * np.array([1.0, 0.0, 1.0])
-        forward = forward / np.linalg.norm(forward) if np.linalg.norm(forward) > 1e-6 else np.array([0.0, 0.0, 1.0])
-        mid = 0.5 * (frames - 1) * frame_time
-        pushed = tracking.replay(char, reference, result, push=(root, args.push * forward, mid, _PUSH_SECONDS))
-        lines.append(f"push {args.push:g} N forward on the root body for {_PUSH_SECONDS} s at {mid:.2f} s "
-                     f"(open-loop controls): {'fell' if bool(pushed.fell) else 'stood'}")
+        lines += _push_report(args.push, char, reference, result, frames, frame_time, ui)
     if args.plot is not None:
         _plot_tracking(args.plot, result, reference, frame_time, char,
                        f"{clip.path.name}: samcon, {options.samples} samples, no root force")
@@ -128,6 +125,28 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         ui.error("the character fell (its root went below 0.7 x the clip's lowest root height)")
         return 1
     return 0
+
+
+def _push_report(newtons: float, char, reference, result, frames: int, frame_time: float, ui: _UI) -> list[str]:
+    """Compute the feedback gains, push the torso forward at mid-clip, with and without them: lines."""
+    from .. import tracking
+    from ..character._build import root_body
+
+    ui.progress("feedback: linearizing the simulation along the tracked motion, time-varying LQR")
+    t0 = time.perf_counter()
+    result = jax.block_until_ready(tracking.feedback(char, reference, result))
+    seconds = time.perf_counter() - t0
+    v = np.asarray(reference.states.linear_velocity[:, root_body(char)])
+    forward = v.mean(axis=0) * np.array([1.0, 0.0, 1.0])
+    forward = forward / np.linalg.norm(forward) if np.linalg.norm(forward) > 1e-6 else np.array([0.0, 0.0, 1.0])
+    mid = 0.5 * (frames - 1) * frame_time
+    torso = tracking.torso_body(char)
+    push = (torso, newtons * forward, mid, _PUSH_SECONDS)
+    fell = {fb: bool(tracking.replay(char, reference, result, push=push, feedback=fb).fell) for fb in (False, True)}
+    word = {True: "fell", False: "stood"}
+    return [f"feedback gains: {frames - 1} frames, {_duration(seconds)} (compile included)",
+            f"push {newtons:g} N forward on the torso ({char.model.bodies.names[torso]}) for {_PUSH_SECONDS} s at "
+            f"{mid:.2f} s: open-loop controls {word[fell[False]]}, with the feedback gains {word[fell[True]]}"]
 
 
 def _plot_tracking(path, result, reference, frame_time: float, char, title: str) -> None:
@@ -180,7 +199,10 @@ def add_track_parser(sub, common, file_help: str) -> None:
     p.add_argument("--plot", default=None, metavar="P.png",
                    help="draw the root height and the errors over time (needs matplotlib)")
     p.add_argument("--push", type=float, default=None, metavar="NEWTONS",
-                   help="then replay the controls with a forward push of this force on the root body for 0.2 s "
-                        "at mid-clip, and report whether the character stands")
+                   help="then compute the feedback gains (time-varying LQR around the tracked motion) and replay "
+                        "with a forward push of this force on the torso for 0.2 s at mid-clip, with and without "
+                        "the gains, and report whether the character stands")
+    p.add_argument("--from-frame", type=int, default=0, metavar="F",
+                   help="track from this frame of the file (default 0; e.g. 1 skips an added T-pose)")
     p.set_defaults(func=_cmd_track)
 

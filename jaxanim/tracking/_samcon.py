@@ -32,12 +32,14 @@ the bodies' centers of mass and velocities in meters and m/s, and the root body'
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
+from solvers import RESULTS
 
 from .. import rotations as rot
 from .._errors import JaxanimError
@@ -50,8 +52,8 @@ from ..physics._step import _control_for, _step
 from ..skeleton._skeleton import Motion
 
 __all__ = [
-    "TrackingOptions", "TrackingReference", "TrackingResult", "TrackingStatus", "joint_sigma", "replay", "samcon",
-    "tracking_reference", "windows_of",
+    "Feedback", "TrackingOptions", "TrackingReference", "TrackingResult", "TrackingStatus", "joint_sigma", "replay", "samcon",
+    "state_difference", "state_retract", "torso_body", "tracking_reference", "windows_of",
 ]
 
 
@@ -165,6 +167,24 @@ def tracking_reference(character: Character, motion: Motion, *, ground_clip: boo
     return TrackingReference(targets=targets, states=states, frame_time=jnp.asarray(dt, states.position.dtype), lift=lift)
 
 
+class Feedback(eqx.Module):
+    """Time-varying linear feedback around a tracked trajectory (:func:`~jaxanim.tracking.feedback`).
+
+    At frame ``f`` (simulating ``f -> f + 1``) every physics joint's target correction gets
+    ``clip(gains[f] @ state_difference(state, trajectory[f]), limit)`` added (a rotation vector per
+    joint, its norm clipped to ``limit``), on top of its window's open-loop correction.
+
+    Attributes:
+        gains: ``[frames - 1, 3 joints, 12 bodies]`` (the LQR gains, applied with a plus sign).
+        limit: the largest feedback correction per joint (radians).
+        result: the status of the Riccati recursion (:class:`solvers.RESULTS`).
+    """
+
+    gains: Float[Array, "steps controls states"]
+    limit: Float[Array, ""]
+    result: RESULTS
+
+
 class TrackingResult(eqx.Module):
     """The result of :func:`samcon`.
 
@@ -178,6 +198,8 @@ class TrackingResult(eqx.Module):
         window_cost: ``[windows]`` the cost of each window along the kept lineage.
         status: :class:`TrackingStatus`.
         options: the options used.
+        feedback: the time-varying feedback gains around ``trajectory``
+            (:class:`~jaxanim.tracking.Feedback`, from :func:`~jaxanim.tracking.feedback`), or None.
     """
 
     corrections: Float[Array, "windows joints 3"]
@@ -187,6 +209,7 @@ class TrackingResult(eqx.Module):
     window_cost: Float[Array, " windows"]
     status: TrackingStatus
     options: TrackingOptions
+    feedback: Feedback | None = None
 
     @property
     def fell(self) -> Bool[Array, ""]:
@@ -207,6 +230,56 @@ def joint_sigma(character: Character, body: float = 0.15, upper: float = 0.05) -
     names = [skel.names[j].lower() for j in child_joint]
     dtype = character.model.bodies.mass.dtype
     return jnp.asarray([upper if any(k in n for k in _UPPER_BODY) else body for n in names], dtype)
+
+
+def state_difference(state: BodyState, nominal: BodyState) -> Float[Array, " 12*bodies"]:
+    """The tangent-space difference ``state - nominal`` of two body states, flattened:
+    ``[positions (m), orientations (rotation vectors of q q_nominal^-1, world frame, rad), linear
+    velocities, angular velocities]``, each ``[bodies, 3]``. This is the state of the feedback
+    gains (:func:`jaxanim.tracking.feedback`); :func:`state_retract` is its inverse."""
+    dq = rot.quat_canonical(rot.quat_multiply(state.orientation, rot.quat_conjugate(nominal.orientation)))
+    return jnp.stack([state.position - nominal.position, rot.quat_to_rotvec(dq),
+                      state.linear_velocity - nominal.linear_velocity,
+                      state.angular_velocity - nominal.angular_velocity]).reshape(-1)
+
+
+def state_retract(nominal: BodyState, dx: Float[Array, " 12*bodies"]) -> BodyState:
+    """The state ``nominal + dx`` (``dx`` as :func:`state_difference` gives it)."""
+    dx = dx.reshape(4, nominal.position.shape[0], 3)
+    q = rot.quat_multiply(rot.rotvec_to_quat(dx[1]), nominal.orientation)
+    return BodyState(nominal.position + dx[0], q, nominal.linear_velocity + dx[2],
+                     nominal.angular_velocity + dx[3], nominal.time)
+
+
+def _clip_norm(u: Float[Array, "joints 3"], limit) -> Float[Array, "joints 3"]:
+    """``u`` with each row's norm clipped to ``limit``."""
+    n = jnp.linalg.norm(u, axis=-1, keepdims=True)
+    return u * jnp.minimum(1.0, limit / jnp.maximum(n, jnp.finfo(u.dtype).tiny))
+
+
+class _Problem(NamedTuple):
+    window: Callable
+    simulate_frame: Callable
+    start_state: Callable
+    frame_cost: Callable
+    errors: Callable
+    fell: Callable
+    num_joints: int
+
+
+_TORSO = ("chest", "spine", "torso", "thorax", "back", "abdomen")
+
+
+def torso_body(character: Character) -> int:
+    """The body to push "on the torso": the first body (in the model's order, parents first) whose
+    joint's name contains chest, else the last one with spine, torso, thorax, back or abdomen in it,
+    else the root body."""
+    names = [character.skeleton.names[j].lower() for j in character.body_joint]
+    chest = [b for b, n in enumerate(names) if "chest" in n]
+    if chest:
+        return chest[0]
+    spine = [b for b, n in enumerate(names) if any(k in n for k in _TORSO)]
+    return spine[-1] if spine else root_body(character)
 
 
 def _problem(character: Character, reference: TrackingReference, options: TrackingOptions):
@@ -231,27 +304,39 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
 
     last = reference.num_frames - 1
 
-    def window(s: BodyState, f0, correction, push=None, lookahead: int = 0):
+    def simulate_frame(s: BodyState, f, dq, push=None):
+        """Simulate frame ``f`` (from frame ``f - 1``'s state ``s``) towards the targets of frame ``f``
+        corrected by ``dq`` (``[joints, 4]``, right-multiplied)."""
+        spd = StablePD(rot.quat_multiply(reference.targets[f], dq), kp, kd)
+
+        def physics_step(s, k):
+            force = None
+            if push is not None:  # (body, force [3], first step, last step) of the whole run
+                body, fvec, first, stop = push
+                n = (f - 1) * options.steps_per_frame + k
+                on = (n >= first) & (n < stop)
+                force = jnp.zeros_like(s.position).at[body].set(jnp.where(on, 1.0, 0.0) * fvec)
+            return _step(model, s, _control_for(model, Control(spd=spd, force=force)), h), None
+
+        return jax.lax.scan(physics_step, s, jnp.arange(options.steps_per_frame))[0]
+
+    def window(s: BodyState, f0, correction, push=None, lookahead: int = 0, feedback=None):
         """Simulate the frames ``f0 + 1 .. f0 + window`` (and ``lookahead`` more with the same
         correction, for the cost only): ``(state at the window's end, cost, states per frame of the
-        window)``."""
+        window)``. ``feedback``: ``(gains [frames - 1, 3 joints, 12 bodies], nominal states [frames],
+        limit)`` adds ``clip(gains[f - 1] @ state_difference(s, nominal[f - 1]), limit)`` per joint to
+        the correction of frame ``f``."""
         dq = rot.rotvec_to_quat(correction)
 
         def frame(carry, i):
             s, c = carry
             f = jnp.minimum(f0 + i + 1, last)
-            spd = StablePD(rot.quat_multiply(reference.targets[f], dq), kp, kd)
-
-            def physics_step(s, k):
-                force = None
-                if push is not None:  # (body, force [3], first step, last step) of the whole run
-                    body, fvec, first, stop = push
-                    n = (f - 1) * options.steps_per_frame + k
-                    on = (n >= first) & (n < stop)
-                    force = jnp.zeros_like(s.position).at[body].set(jnp.where(on, 1.0, 0.0) * fvec)
-                return _step(model, s, _control_for(model, Control(spd=spd, force=force)), h), None
-
-            s, _ = jax.lax.scan(physics_step, s, jnp.arange(options.steps_per_frame))
+            dqf = dq
+            if feedback is not None:
+                gains, nominal, limit = feedback
+                u = (gains[f - 1] @ state_difference(s, jax.tree.map(lambda x: x[f - 1], nominal))).reshape(nj, 3)
+                dqf = rot.quat_multiply(dq, rot.rotvec_to_quat(_clip_norm(u, limit)))
+            s = simulate_frame(s, f, dqf, push)
             return (s, c + frame_cost(s, f)), s
 
         (s, c), states = jax.lax.scan(frame, (s, jnp.zeros((), dtype)), jnp.arange(options.window + lookahead))
@@ -280,7 +365,7 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
         lowest = jnp.min(ref.position[:, root] @ normal)
         return jnp.any(height < 0.7 * lowest)
 
-    return window, start_state, frame_cost, errors, fell, nj
+    return _Problem(window, simulate_frame, start_state, frame_cost, errors, fell, nj)
 
 
 def _check(character, reference, options):
@@ -346,7 +431,7 @@ def _report(window, windows) -> None:
 
 @eqx.filter_jit
 def _samcon(character, reference, key, options: TrackingOptions, windows: int):
-    window, start_state, frame_cost, errors, fell, nj = _problem(character, reference, options)
+    window, _, start_state, frame_cost, errors, fell, nj = _problem(character, reference, options)
     N, K, W = options.samples, options.elites, options.window
     start = start_state()
     elites = jax.tree.map(lambda x: jnp.broadcast_to(x, (K,) + x.shape), start)
@@ -390,19 +475,21 @@ def _result(reference, options, start, corrections, states, frame_cost, errors, 
                           window_cost=costs, status=status, options=options)
 
 
-def _replay(character, reference, options, corrections, push):
-    """Simulate the corrections from the start; the :class:`TrackingResult`."""
-    window, start_state, frame_cost, errors, fell, nj = _problem(character, reference, options)
-    start = start_state()
+def _replay(character, reference, options, corrections, push, feedback):
+    """Simulate the corrections from the start with ``push`` ``(body, force, first step, last step)``
+    and ``feedback`` ``(Feedback, nominal states)``; the :class:`TrackingResult` (without feedback)."""
+    problem = _problem(character, reference, options)
+    start = problem.start_state()
     W = options.window
+    law = None if feedback is None else (feedback[0].gains, feedback[1], feedback[0].limit)
 
     def per_window(s, x):
         w, corr = x
-        s, _, states = window(s, w * W, corr, push)
+        s, _, states = problem.window(s, w * W, corr, push, 0, law)
         return s, states
 
     _, states = jax.lax.scan(per_window, start, (jnp.arange(corrections.shape[0]), corrections))
-    return _result(reference, options, start, corrections, states, frame_cost, errors, fell)
+    return _result(reference, options, start, corrections, states, problem.frame_cost, problem.errors, problem.fell)
 
 
 def replay(
@@ -411,25 +498,44 @@ def replay(
     result: TrackingResult,
     *,
     push: tuple[int, Float[Array, "3"], float, float] | None = None,
+    feedback: bool | None = None,
 ) -> TrackingResult:
-    """Simulate a result's corrections again from the start, optionally with a push.
+    """Simulate a result's corrections again from the start, optionally with a push and feedback.
 
     Args:
         character, reference: as given to :func:`samcon`.
         result: a :class:`TrackingResult`.
         push: ``(body, force [3] (N, world), start (s), duration (s))``: an external force on one
-            body's center of mass for a while (a disturbance: the controls do not change).
+            body's center of mass for a while (a disturbance: the open-loop controls do not change).
+        feedback: apply the result's feedback gains (:func:`~jaxanim.tracking.feedback`) around its
+            trajectory: ``None`` (default) when the result has them, ``True`` to require them,
+            ``False`` for the open-loop corrections alone.
 
     Returns:
-        The :class:`TrackingResult` of the replay (without a push it equals ``result``).
+        The :class:`TrackingResult` of the replay (without a push it equals ``result``: with
+        feedback too, since the state never leaves the trajectory the gains were made for).
+
+    Raises:
+        JaxanimError: ``feedback=True`` for a result without gains.
     """
     options, _ = _check(character, reference, result.options)
-    if push is not None:
-        body, force, start, duration = push
-        steps = options.steps_per_frame / float(reference.frame_time)
-        push = (int(body), jnp.asarray(force, reference.states.position.dtype),
-                jnp.asarray(round(float(start) * steps)), jnp.asarray(round(float(start + duration) * steps)))
-    return _replay_jit(character, reference, options, result.corrections, push)
+    dtype = reference.states.position.dtype
+    # One program for every replay: no push is a zero force, no feedback zero gains (u = 0 exactly).
+    body, force, start, duration = (0, jnp.zeros(3, dtype), 0.0, 0.0) if push is None else push
+    steps = options.steps_per_frame / float(reference.frame_time)
+    push = (jnp.asarray(int(body)), jnp.asarray(force, dtype), jnp.asarray(round(float(start) * steps)),
+            jnp.asarray(round(float(start + duration) * steps)))
+    if feedback and result.feedback is None:
+        raise JaxanimError("feedback=True: the result has no feedback gains (compute them with tracking.feedback)")
+    if feedback is False or result.feedback is None:
+        frames, nb = result.trajectory.position.shape[:2]
+        law = Feedback(gains=jnp.zeros((frames - 1, result.corrections.shape[1] * 3, 12 * nb), dtype),
+                       limit=jnp.zeros((), dtype), result=RESULTS.successful)
+    else:
+        law = result.feedback
+    replayed = _replay_jit(character, reference, options, result.corrections, push, (law, result.trajectory))
+    return eqx.tree_at(lambda r: r.feedback, replayed, None if law is not result.feedback else law,
+                       is_leaf=lambda x: x is None)
 
 
 _replay_jit = eqx.filter_jit(_replay)
