@@ -6,9 +6,9 @@ Physics compiles slowly, so the whole file runs ``simulate`` twice, in one modul
 root force, which is an argument of the compiled rollout, not a constant in it: with the
 persistent compilation cache on (in a temporary directory), the second run loads the first one's
 program. The written files are checked against independent references: the clip read back with
-``read_bvh`` and its forward kinematics (one compiled shape for the clip, one for the 30 written
-frames). Everything else (the frame / step plan, the loop of a short clip, bad input) runs no
-physics.
+``read_bvh`` and its forward kinematics (one compiled shape: the clip's first 30 frames, which the
+runs track, and the 30 written frames). Everything else (the frame / step plan, the loop of a short
+clip, bad input) runs no physics.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import jaxanim
 from jaxanim import cli
 
 from .conftest import shared_data_dir
-from .helpers import assert_close, phys_cmu_character
+from .helpers import assert_close, batched_fk, phys_cmu_character
 
 _CMU = "cmu_01_01_trim300"
 _SECONDS = 0.25  # 30 frames at 120 fps
@@ -97,13 +97,15 @@ def sims(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def cmu_clip():
-    """The CMU clip, its FK (all 300 frames) and its unit."""
+    """The CMU clip, the FK of its first ``_FRAMES`` frames (those the runs track: the written
+    frames' shape, one compiled FK for both) and its unit."""
     skel, motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / f"{_CMU}.bvh")[:2]
-    return skel, motion, _fk(skel, motion), _unit(skel)
+    first = jaxanim.Motion(motion.rotations[:_FRAMES], motion.translations[:_FRAMES], motion.frame_time)
+    return skel, motion, _fk(skel, first), _unit(skel)
 
 
 def _fk(skel, motion):
-    return cli.batched_fk()(skel, motion.rotations, motion.translations)
+    return batched_fk()(skel, motion.rotations, motion.translations)  # the same jit as cli.batched_fk(), cached
 
 
 def _unit(skel) -> float:
