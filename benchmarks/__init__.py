@@ -94,6 +94,8 @@ REGISTRY: dict[str, BenchmarkSpec] = {s.name: s for s in (
                   "optimal control: iLQR/DDP/LQR/DARE vs Crocoddyl and scipy (unicycle, LQ, DARE, swing-ups)"),
     BenchmarkSpec("physics", "benchmarks.physics:run_physics",
                   "~20-body character standing under PD control: jaxanim (penalty, complementarity), MuJoCo C, MJX"),
+    BenchmarkSpec("tracking", "benchmarks.tracking:run_tracking",
+                  "SAMCON tracking of the shipped walk: samples/s vs MuJoCo C rollouts of the batch, time to track 4 s"),
     BenchmarkSpec("profile", "benchmarks.profile:run_profile",
                   "where the time goes: jax.profiler traces of the kernels behind the speed targets"),
     BenchmarkSpec("scaling", "benchmarks.scaling:run_scaling",

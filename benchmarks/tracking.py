@@ -1,0 +1,178 @@
+"""Tracking benchmark (``python -m benchmarks tracking``): the sampling search of ``jaxanim.tracking`` on the
+shipped walk: samples per second against MuJoCo C rollouts of the same batch, and the time to track 4 s;
+float64 only."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxanim import character, default_clip_path, physics, read_bvh, tracking
+from jaxanim.app._simulate import _looped_motion
+
+from .peers import mujoco_physics as mp
+from .report import Row, Table, Target, sel, usable_cores
+from .timing import Runner, Timing, compile_time
+
+__all__ = ["TrackingSizes", "run_tracking", "walk_problem"]
+
+_MJ_ROLLOUT = "MuJoCo C rollout.rollout"
+_MJ_LOOP = "MuJoCo C mj_step (Python loop)"
+_SEARCH = "jaxanim tracking.samcon"
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingSizes:
+    """Sizes (``--quick`` and tests shrink them): sample batches of the throughput table and the windows of
+    each timed search; the walk table's seconds (0: no walk table) and samples."""
+
+    batches: tuple[int, ...] = (256, 1024)
+    windows_per_call: int = 10
+    walk_seconds: float = 4.0
+    walk_samples: int = 256
+
+
+@functools.lru_cache(maxsize=None)
+def walk_problem(frames: int):
+    """``(character, reference)`` of the shipped walk looped to ``frames`` frames (complementarity contact on
+    the 8 lowest points, 10 sweeps: the ``jaxanim track`` character)."""
+    skel, clip = read_bvh(default_clip_path())[:2]
+    ground = physics.make_ground("complementarity", max_points=8, iterations=10, dtype=jnp.float64)
+    char, _ = character.build_character(skel, ground=ground)
+    return char, tracking.tracking_reference(char, _looped_motion(clip, frames))
+
+
+def _options(char, samples: int) -> tracking.TrackingOptions:
+    """The options ``jaxanim track --samples N`` uses."""
+    return tracking.TrackingOptions(samples=samples, elites=max(1, min(samples // 4, 32)),
+                                    sigma=tracking.joint_sigma(char))
+
+
+def _samples_table(config, sz: TrackingSizes) -> Table:
+    batches = tuple(b for b in config.batches_for(sz.batches) if b >= 2)  # a search samples at least 2
+    W = sz.windows_per_call
+    char, ref = walk_problem(W * 3 + 1)
+    o = _options(char, 2)
+    steps = (o.window + o.lookahead) * o.steps_per_frame  # physics steps per sample
+    h = float(ref.frame_time) / o.steps_per_frame
+    nthread = usable_cores()
+    table = Table(
+        "tracking", "Tracking: SAMCON samples per second on the shipped walk (µs per character-step)",
+        accuracy_label="mean joint error (rad)", description=(
+            f"One call of `tracking.samcon` tracks the shipped walk's first {W * o.window / 30:g} s: {W} windows of "
+            f"{o.window} frames, each window simulating `batch` samples (stable-PD target corrections) for "
+            f"{o.window} frames plus {o.lookahead} of look-ahead at {o.steps_per_frame} steps per frame (dt = 1/"
+            f"{round(1 / h)} s): {steps} character-steps per sample, {nthread} usable cores. The character has "
+            f"{char.num_bodies} bodies and {char.model.joints.num_joints} ball joints, complementarity contact on its "
+            "8 lowest points (10 PGS sweeps), no root force. **µs / char is per character-step** (samples per "
+            f"second = 10^6 / ({steps} x µs/char)); jaxanim's time includes the elite selection and bookkeeping. "
+            f"MuJoCo C rolls out the same batch of characters from the walk's first frame for {steps} steps of the "
+            "same dt on its `character.export_mjcf` model (joint springs of the same kp, kd towards that frame's pose, "
+            "Euler, condim 3 plane): the simulation of one window's samples, without the search; with springs it has "
+            "one target for all samples, jaxanim a different one per sample. Accuracy: the search's mean joint error "
+            "over the tracked frames."),
+        targets=[Target("SAMCON at batch 1024 at most MuJoCo C's time per character-step (rollout on all threads; "
+                        "speedup ≥ 1x)", sel(_SEARCH, batch=1024), 1.0, versus=sel((_MJ_ROLLOUT, _MJ_LOOP), batch=1024)),
+                 Target("search compile ≤ 30 s", sel(_SEARCH), 30.0, "compile", worst=True)])
+    run = Runner(config, table)
+
+    @functools.cache
+    def mujoco() -> mp.MujocoSim:  # max(batches) characters at rest in the walk's first frame
+        start = jax.tree.map(lambda a: a[0], ref.states)
+        xml = character.export_mjcf(char, start, dt=h, stiffness=float(o.kp), damping=float(o.kd))
+        return mp.MujocoSim(xml, char.model.bodies.names, character.root_body(char), np.zeros((max(batches), 3)))
+
+    def mj_rollout_row(b: int) -> Row:
+        sim = mujoco()
+        _, tm = run.python(sim.rollout, steps, [sim.mujoco.MjData(sim.model) for _ in range(nthread)], b)
+        return run.row(_MJ_ROLLOUT, "float64", b, tm, b * steps, accuracy="n/a (no search)",
+                       note=f"nthread = {nthread}; {b / tm.median:.0f} samples/s")
+
+    def mj_loop_row(b: int) -> Row:
+        count = min(b, config.loop_cap)
+        _, tm = run.python(mujoco().step_loop, steps, count)
+        return run.row(_MJ_LOOP, "float64", b, tm, count * steps, accuracy="n/a (no search)",
+                       note=f"Python loop over {count} of {b} characters" if count < b else "Python loop")
+
+    def jax_row(b: int) -> Row:
+        opts = _options(char, b)
+        fn = jax.jit(lambda k: tracking.samcon(char, ref, k, opts))
+        res, tm, comp = run.jax(fn, jax.random.PRNGKey(0))
+        samples_per_s = W * b / tm.median
+        return run.row(_SEARCH, "float64", b, tm, W * b * steps, comp, float(np.mean(np.asarray(res.joint_error[1:]))),
+                       success=float(not bool(res.fell)),
+                       note=f"{samples_per_s:.0f} samples/s; {opts.elites} elites; {W} windows per call")
+
+    for b in batches:
+        run.add(_MJ_LOOP, "float64", b, lambda: mj_loop_row(b), peer=True)
+        run.add(_MJ_ROLLOUT, "float64", b, lambda: mj_rollout_row(b), peer=True)
+        run.add(_SEARCH, "float64", b, lambda: jax_row(b))
+    if any(r.implementation == _MJ_ROLLOUT and r.measured for r in table.rows):
+        from mujoco import rollout as mj_rollout
+
+        mj_rollout.shutdown_persistent_pool()
+    return table
+
+
+def _walk_table(config, sz: TrackingSizes) -> Table:
+    secs, n = sz.walk_seconds, sz.walk_samples
+    frames = int(round(secs * 30)) + 1
+    char, ref = walk_problem(frames)
+    opts = _options(char, n)
+    table = Table(
+        "tracking-walk", f"Tracking: {secs:g} s of the shipped walk without root force",
+        accuracy_label="mean joint error (rad)", description=(
+            f"`tracking.samcon` with {n} samples per window ({opts.elites} elites, seed 0) on the shipped walk "
+            f"looped to {secs:g} s ({frames} frames, {tracking.windows_of(ref, opts)} windows), as `jaxanim track "
+            f"--seconds {secs:g}` runs it; then `tracking.feedback`: the simulation linearized at every frame "
+            "(`jax.jacfwd` of 4 physics steps) and the time-varying LQR gains (`solvers.lqr`). One timed call each "
+            "(µs / char is per tracked frame), compile apart. Accuracy: mean joint error over the frames; notes: the "
+            "horizontal root error and whether the character fell. No peer tracks a BVH clip without root force; the "
+            "samples table above compares the simulation with MuJoCo."))
+    run = Runner(config, table)
+    result: dict[str, tracking.TrackingResult] = {}
+
+    def search_row() -> Row:
+        fn = jax.jit(lambda k: tracking.samcon(char, ref, k, opts))
+        cs = compile_time(fn, jax.random.PRNGKey(0))
+        t0 = time.perf_counter()
+        res = jax.block_until_ready(cs.compiled(jax.random.PRNGKey(0)))
+        wall = time.perf_counter() - t0
+        result["search"] = res
+        root = float(np.mean(np.asarray(res.root_error[1:])))
+        return run.row(f"{_SEARCH} ({n} samples)", "float64", 1, Timing(wall, None, 1), frames - 1, cs.total,
+                       float(np.mean(np.asarray(res.joint_error[1:]))), success=float(not bool(res.fell)),
+                       note=f"{tracking.windows_of(ref, opts) * n / wall:.0f} samples/s; mean horizontal root error "
+                            f"{root:.3f} m; {'fell' if bool(res.fell) else 'no fall'}")
+
+    def feedback_row() -> Row:
+        res = result["search"]
+        t0 = time.perf_counter()
+        jax.block_until_ready(tracking.feedback(char, ref, res))  # compiles: the first call
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        jax.block_until_ready(tracking.feedback(char, ref, res))
+        wall = time.perf_counter() - t0
+        return run.row("jaxanim tracking.feedback (linearize + LQR)", "float64", 1, Timing(wall, None, 1), frames - 1,
+                       max(first - wall, 0.0), note=f"{frames - 1} frames, {12 * char.num_bodies} states, "
+                       f"{3 * char.model.joints.num_joints} controls; compile: first call minus second")
+
+    run.add(f"{_SEARCH} ({n} samples)", "float64", 1, search_row)
+    if "search" in result:
+        run.add("jaxanim tracking.feedback (linearize + LQR)", "float64", 1, feedback_row)
+    return table
+
+
+def run_tracking(config, sizes: TrackingSizes | None = None) -> list[Table]:
+    """The ``tracking`` benchmark (see the module docstring); ``sizes`` shrinks it for tests."""
+    sz = sizes or (TrackingSizes(batches=(8,), windows_per_call=2, walk_seconds=0.0) if config.quick
+                   else TrackingSizes())
+    config.float64_only("tracking", "the physics runs in float64")
+    out = [_samples_table(config, sz)]
+    if sz.walk_seconds > 0:
+        out.append(_walk_table(config, sz))
+    return out
