@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +12,7 @@ import jaxanim
 from jaxanim import rotations as rot
 
 from .conftest import shared_bvh_files, shared_data_dir
-from .helpers import assert_close, batched_fk, random_pose, shared_clip, small_skeleton
+from .helpers import assert_close, batched_fk, jitted_fk, random_pose, shared_clip, small_skeleton
 
 _RTOL_FK64 = 1e-9  # relative to the largest |position| of the clip
 _RTOL_FK32 = 1e-4
@@ -81,13 +82,14 @@ def test_quaternion_and_matrix_inputs_agree():
 def test_vmap_equals_loop_and_nested_vmap():
     skel = small_skeleton()
     q, t = random_pose(skel, 1, n=6)
-    out = jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0))(skel, q, t)
+    # jitted, the vmap and the single-pose FK (eager, each op would compile on its own)
+    out = batched_fk()(skel, q, t)
     for i in range(6):
-        one = jaxanim.forward_kinematics(skel, q[i], t[i])
+        one = jitted_fk(skel, q[i], t[i])
         assert_close("positions", out.positions[i], one.positions, atol=1e-14)
         assert_close("rotations", out.rotations[i], one.rotations, atol=1e-14)
         assert_close("end_site_positions", out.end_site_positions[i], one.end_site_positions, atol=1e-14)
-    nested = jax.vmap(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))(
+    nested = jax.jit(jax.vmap(batched_fk(), in_axes=(None, 0, 0)))(
         skel, q.reshape(2, 3, -1, 4), t.reshape(2, 3, -1, 3)
     )
     assert_close("nested positions", nested.positions.reshape(out.positions.shape), out.positions, atol=1e-14)
@@ -156,10 +158,12 @@ def test_global_to_local_inverts_fk(stem):
 def test_global_to_local_vmap_equals_loop_small():
     skel = small_skeleton()
     q, t = random_pose(skel, 4, n=3)
-    out = jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0))(skel, q, t)
-    qb, tb = jax.vmap(jaxanim.global_to_local, in_axes=(None, 0, 0))(skel, out.rotations, out.positions)
+    out = batched_fk()(skel, q, t)
+    # jitted, the vmap and the single-pose call (eager, each op would compile on its own)
+    qb, tb = jax.jit(jax.vmap(jaxanim.global_to_local, in_axes=(None, 0, 0)))(skel, out.rotations, out.positions)
+    one = eqx.filter_jit(jaxanim.global_to_local)
     for i in range(3):
-        qi, ti = jaxanim.global_to_local(skel, out.rotations[i], out.positions[i])
+        qi, ti = one(skel, out.rotations[i], out.positions[i])
         assert_close("rotations", qb[i], qi, atol=1e-15)
         assert_close("translations", tb[i], ti, atol=1e-15)
         assert_close("translations vs input", ti, t[i], atol=1e-12)
