@@ -29,7 +29,7 @@ FRAMES = 61  # 2 s at 30 fps: 20 windows
 
 def _options(char):
     """The options of every search here, the CLI's for --samples 32 (one compiled program)."""
-    return tracking.TrackingOptions(samples=32, elites=8, sigma=tracking.joint_sigma(char))
+    return tracking.tracking_options(char, 1 / 30, 32)
 
 
 @pytest.fixture(scope="module")
@@ -80,6 +80,19 @@ def test_search_is_deterministic_and_vmap_over_seeds_equals_a_loop(problem, resu
     np.testing.assert_allclose(np.asarray(batched.corrections[1]), np.asarray(one.corrections), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(np.asarray(batched.window_cost[1]), np.asarray(one.window_cost), rtol=1e-9)
     assert not np.array_equal(np.asarray(one.corrections), np.asarray(result.corrections))
+
+
+def test_options_scale_with_the_frame_rate(problem):
+    char = problem[0]
+    walk, cmu = tracking.tracking_options(char, 1 / 30, 32), tracking.tracking_options(char, 1 / 120, 300)
+    assert (walk.window, walk.lookahead, walk.steps_per_frame, walk.elites) == (3, 6, 4, 8)  # 0.1 s windows
+    assert (cmu.window, cmu.lookahead, cmu.steps_per_frame, cmu.elites) == (12, 24, 1, 32)  # physics at 120 Hz
+    np.testing.assert_array_equal(np.asarray(walk.sigma), np.asarray(tracking.joint_sigma(char)))
+    assert float(tracking.tracking_options(char, 1 / 30, 4, kp=2500.0).kp) == 2500.0
+    with pytest.raises(jaxanim.JaxanimError, match="frame_time: expected a positive number"):
+        tracking.tracking_options(char, 0.0)
+    with pytest.raises(jaxanim.JaxanimError, match="samples: expected an int >= 2"):
+        tracking.tracking_options(char, 1 / 30, 1)
 
 
 @pytest.fixture(scope="module")

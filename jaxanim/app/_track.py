@@ -8,7 +8,6 @@ import math
 import sys
 import time
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -62,10 +61,13 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     motion = clip.motion
     if args.from_frame:
         motion = Motion(motion.rotations[args.from_frame:], motion.translations[args.from_frame:], motion.frame_time)
-    options = tracking.TrackingOptions(samples=args.samples, elites=max(1, min(args.samples // 4, 32)))  # sigma below
+    ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
+                         dtype=jnp.float64)
+    char, _ = character.build_character(clip.skeleton, ground=ground)
+    options = tracking.tracking_options(char, float(motion.frame_time), args.samples)
     if motion.num_frames < options.window + 1:
-        raise JaxanimError(f"{clip.label} has {motion.num_frames} frames from frame {args.from_frame}: too short for one control window "
-                           f"of {options.window} frames (need at least {options.window + 1})")
+        raise JaxanimError(f"{clip.label} has {motion.num_frames} frames from frame {args.from_frame}: too short for "
+                           f"one control window of {options.window} frames (need at least {options.window + 1})")
     out = args.out or f"{clip.stem}.track.bvh"
     _check_writable("--out", out)
     if args.plot is not None:
@@ -84,10 +86,6 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         ui.progress(f"looping the clip: {frames} frames from {motion.num_frames}")
     reference_motion = _looped_motion(motion, frames)
     t0 = time.perf_counter()
-    ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
-                         dtype=jnp.float64)
-    char, _ = character.build_character(clip.skeleton, ground=ground)
-    options = eqx.tree_at(lambda o: o.sigma, options, tracking.joint_sigma(char))
     reference = tracking.tracking_reference(char, reference_motion)
     ui.progress(f"tracking {_num((frames - 1) * frame_time)} s: {windows} windows of {options.window} frames, "
                 f"{options.samples} samples each, seed {args.seed}, {args.contact} contact, no root force")

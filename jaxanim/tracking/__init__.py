@@ -15,6 +15,7 @@ from ._samcon import (
     state_difference as state_difference,
     state_retract as state_retract,
     torso_body as torso_body,
+    tracking_options as tracking_options,
     tracking_reference as tracking_reference,
     windows_of as windows_of,
 )

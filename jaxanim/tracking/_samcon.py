@@ -31,6 +31,7 @@ the bodies' centers of mass and velocities in meters and m/s, and the root body'
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -53,7 +54,7 @@ from ..skeleton._skeleton import Motion
 
 __all__ = [
     "Feedback", "TrackingOptions", "TrackingReference", "TrackingResult", "TrackingStatus", "joint_sigma", "replay", "samcon",
-    "state_difference", "state_retract", "torso_body", "tracking_reference", "windows_of",
+    "state_difference", "state_retract", "torso_body", "tracking_options", "tracking_reference", "windows_of",
 ]
 
 
@@ -280,6 +281,27 @@ def torso_body(character: Character) -> int:
         return chest[0]
     spine = [b for b, n in enumerate(names) if any(k in n for k in _TORSO)]
     return spine[-1] if spine else root_body(character)
+
+
+_WINDOW_SECONDS = 0.1  # a control window
+_LOOKAHEAD_WINDOWS = 2  # the look-ahead of a sample, in windows
+_PHYSICS_RATE = 120.0  # physics steps per second, at least
+
+
+def tracking_options(character: Character, frame_time: float, samples: int = 256, **numbers) -> TrackingOptions:
+    """The options ``jaxanim track --samples N`` uses for a clip of ``frame_time`` seconds per frame:
+    windows of 0.1 s (3 frames at 30 fps, 12 at 120 fps), two windows of look-ahead, at least 120
+    physics steps per second, ``elites = clamp(samples // 4, 1, 32)`` and the spreads of
+    :func:`joint_sigma`; ``numbers`` override the array fields (``kp=...``, ``w_pose=...``)."""
+    frame_time = float(frame_time)
+    if not (np.isfinite(frame_time) and frame_time > 0):
+        raise JaxanimError(f"frame_time: expected a positive number of seconds, got {frame_time!r}")
+    samples = _positive_int("samples", samples, 2)
+    window = max(1, round(_WINDOW_SECONDS / frame_time))
+    return TrackingOptions(samples=samples, elites=max(1, min(samples // 4, 32)), window=window,
+                           lookahead=_LOOKAHEAD_WINDOWS * window,
+                           steps_per_frame=max(1, math.ceil(_PHYSICS_RATE * frame_time - 1e-9)),
+                           **{"sigma": joint_sigma(character), **numbers})
 
 
 def _problem(character: Character, reference: TrackingReference, options: TrackingOptions):
