@@ -112,7 +112,7 @@ def test_pin_frozen_and_vmap_equals_loop():
         return ik.solve_ik(skel, ik.Target("forearm_End", goal), q, t, pin="head_End", frozen=("leg",),
                            regularization=1e-3, stop_at_tolerance=False)
 
-    batched = jax.vmap(solve)(jnp.stack(goals))
+    batched = jax.jit(jax.vmap(solve))(jnp.stack(goals))  # one program (an eager vmap dispatches op by op)
     assert bool(jnp.all(batched.result == solvers.RESULTS.successful))  # converged
     single = jax.jit(solve)  # one compilation for the loop
     for i, g in enumerate(goals):

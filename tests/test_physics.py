@@ -161,9 +161,14 @@ def test_step_vmap_equals_loop():
     model, state = _double_pendulum()
     rng = np.random.default_rng(1)
     torques = jnp.asarray(rng.standard_normal((3, 2, 3)))
-    batched = jax.vmap(lambda tau: physics.step(model, state, 1 / 600, joint_torque=tau))(torques)
+    def one(tau):
+        return physics.step(model, state, 1 / 600, joint_torque=tau)
+
+    # jitted, the vmap and the single step (eager, each op would compile on its own)
+    batched = jax.jit(jax.vmap(one))(torques)
+    one = jax.jit(one)
     for i in range(3):
-        single = physics.step(model, state, 1 / 600, joint_torque=torques[i])
+        single = one(torques[i])
         for name in ("position", "orientation", "linear_velocity", "angular_velocity"):
             np.testing.assert_allclose(getattr(batched, name)[i], getattr(single, name), atol=1e-13, err_msg=name)
 
