@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxanim import character, default_clip_path, physics, read_bvh, tracking
 from jaxanim.app._simulate import _looped_motion
+from jaxanim.tracking import _samcon
 
 from .peers import mujoco_physics as mp
 from .report import Row, Table, Target, sel, usable_cores
@@ -46,17 +47,21 @@ def walk_problem(frames: int):
     return char, tracking.tracking_reference(char, _looped_motion(clip, frames))
 
 
-def _options(char, samples: int) -> tracking.TrackingOptions:
+# The compiled search behind tracking.samcon (its checks aside), taking the character and reference as
+# arguments: the program `samcon` itself runs, so the persistent compilation cache serves both.
+_search = _samcon._samcon
+
+
+def _options(char, ref, samples: int) -> tracking.TrackingOptions:
     """The options ``jaxanim track --samples N`` uses."""
-    return tracking.TrackingOptions(samples=samples, elites=max(1, min(samples // 4, 32)),
-                                    sigma=tracking.joint_sigma(char))
+    return tracking.tracking_options(char, float(ref.frame_time), samples)
 
 
 def _samples_table(config, sz: TrackingSizes) -> Table:
     batches = tuple(b for b in config.batches_for(sz.batches) if b >= 2)  # a search samples at least 2
     W = sz.windows_per_call
     char, ref = walk_problem(W * 3 + 1)
-    o = _options(char, 2)
+    o = _options(char, ref, 2)
     steps = (o.window + o.lookahead) * o.steps_per_frame  # physics steps per sample
     h = float(ref.frame_time) / o.steps_per_frame
     nthread = usable_cores()
@@ -99,9 +104,8 @@ def _samples_table(config, sz: TrackingSizes) -> Table:
                        note=f"Python loop over {count} of {b} characters" if count < b else "Python loop")
 
     def jax_row(b: int) -> Row:
-        opts = _options(char, b)
-        fn = jax.jit(lambda k: tracking.samcon(char, ref, k, opts))
-        res, tm, comp = run.jax(fn, jax.random.PRNGKey(0))
+        opts = _options(char, ref, b)
+        res, tm, comp = run.jax(_search, char, ref, jax.random.PRNGKey(0), opts, W)
         samples_per_s = W * b / tm.median
         return run.row(_SEARCH, "float64", b, tm, W * b * steps, comp, float(np.mean(np.asarray(res.joint_error[1:]))),
                        success=float(not bool(res.fell)),
@@ -122,7 +126,7 @@ def _walk_table(config, sz: TrackingSizes) -> Table:
     secs, n = sz.walk_seconds, sz.walk_samples
     frames = int(round(secs * 30)) + 1
     char, ref = walk_problem(frames)
-    opts = _options(char, n)
+    opts = _options(char, ref, n)
     table = Table(
         "tracking-walk", f"Tracking: {secs:g} s of the shipped walk without root force",
         accuracy_label="mean joint error (rad)", description=(
@@ -137,10 +141,10 @@ def _walk_table(config, sz: TrackingSizes) -> Table:
     result: dict[str, tracking.TrackingResult] = {}
 
     def search_row() -> Row:
-        fn = jax.jit(lambda k: tracking.samcon(char, ref, k, opts))
-        cs = compile_time(fn, jax.random.PRNGKey(0))
+        args = (char, ref, jax.random.PRNGKey(0), opts, tracking.windows_of(ref, opts))
+        cs = compile_time(_search, *args)
         t0 = time.perf_counter()
-        res = jax.block_until_ready(cs.compiled(jax.random.PRNGKey(0)))
+        res = jax.block_until_ready(cs.compiled(*args))
         wall = time.perf_counter() - t0
         result["search"] = res
         root = float(np.mean(np.asarray(res.root_error[1:])))

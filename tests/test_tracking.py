@@ -12,6 +12,8 @@ character, while the open-loop corrections alone fall.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -205,3 +207,29 @@ def test_track_command(tmp_path, capsys):
     ):
         code, _, stderr = _run(capsys, "track", *argv, "--out", out)
         assert code == 2 and message in stderr, stderr
+
+
+def test_benchmark_reduced_run(problem):
+    """``python -m benchmarks tracking`` at batch 32, 20 windows per call: this file's search program
+    (the persistent compilation cache serves it). Timings are not checked; the rows, their units and
+    the MuJoCo peer rows are. The walk table (4 s at 256 samples, then the gains: minutes) is left to
+    the benchmark run."""
+    pytest.importorskip("mujoco")
+    from benchmarks import REGISTRY
+    from benchmarks.report import render_table
+    from benchmarks.tracking import TrackingSizes, run_tracking
+
+    from .helpers import bench_rows, quick_bench_config
+
+    assert REGISTRY["tracking"].load() is run_tracking
+    config = dataclasses.replace(quick_bench_config(), batches=None)  # the sizes' batch, not the config's
+    tables = run_tracking(config, TrackingSizes(batches=(32,), windows_per_call=20, walk_seconds=0.0))
+    table, rows = bench_rows(tables, "tracking")
+    text = render_table(table)
+    assert [t.name for t in tables] == ["tracking"] and "failed:" not in text, text
+    steps = (3 + 6) * 4  # (window + look-ahead frames) x steps per frame, per sample
+    own = rows[("jaxanim tracking.samcon", 32)]
+    assert own.chars_per_call == 20 * 32 * steps and own.success == 1.0 and 0.0 < own.accuracy < 0.3
+    assert rows[("MuJoCo C rollout.rollout", 32)].chars_per_call == 32 * steps
+    assert rows[("MuJoCo C mj_step (Python loop)", 32)].chars_per_call == 2 * steps  # the quick loop cap
+    assert "samples/s" in own.note and "- Target: search compile ≤ 30 s: worst jaxanim tracking.samcon" in text
