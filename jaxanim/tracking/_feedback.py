@@ -42,8 +42,9 @@ class FeedbackOptions(eqx.Module):
 
     ``w_position`` (per m^2), ``w_orientation`` (per rad^2), ``w_velocity``, ``w_angular_velocity``
     weigh every body's tangent state error; ``w_control`` (per rad^2) the feedback corrections;
-    ``limit`` clips each joint's feedback correction (radians). The defaults hold the shipped walk
-    against a forward push of 100-200 N for 0.2 s on the torso.
+    ``limit`` clips each joint's feedback correction (radians). With the defaults, the shipped walk
+    (4 s, 256 samples) stands a forward push of 100 N for 0.2 s on the chest at mid-clip, which fells
+    the open-loop corrections (tests/test_tracking_acceptance.py).
     """
 
     w_position: Float[Array, ""] = eqx.field(default=100.0, converter=jnp.asarray)
