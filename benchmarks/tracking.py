@@ -68,7 +68,7 @@ def _samples_table(config, sz: TrackingSizes) -> Table:
     table = Table(
         "tracking", "Tracking: SAMCON samples per second on the shipped walk (µs per character-step)",
         accuracy_label="mean joint error (rad)", description=(
-            f"One call of `tracking.samcon` tracks the shipped walk's first {W * o.window / 30:g} s: {W} windows of "
+            f"One call of `tracking.samcon` tracks the shipped walk's first {W * o.window * float(ref.frame_time):g} s: {W} windows of "
             f"{o.window} frames, each window simulating `batch` samples (stable-PD target corrections) for "
             f"{o.window} frames plus {o.lookahead} of look-ahead at {o.steps_per_frame} steps per frame (dt = 1/"
             f"{round(1 / h)} s): {steps} character-steps per sample, {nthread} usable cores. The character has "

@@ -61,13 +61,6 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     motion = clip.motion
     if args.from_frame:
         motion = Motion(motion.rotations[args.from_frame:], motion.translations[args.from_frame:], motion.frame_time)
-    ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
-                         dtype=jnp.float64)
-    char, _ = character.build_character(clip.skeleton, ground=ground)
-    options = tracking.tracking_options(char, float(motion.frame_time), args.samples)
-    if motion.num_frames < options.window + 1:
-        raise JaxanimError(f"{clip.label} has {motion.num_frames} frames from frame {args.from_frame}: too short for "
-                           f"one control window of {options.window} frames (need at least {options.window + 1})")
     out = args.out or f"{clip.stem}.track.bvh"
     _check_writable("--out", out)
     if args.plot is not None:
@@ -75,6 +68,13 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         from ._plot import _import_matplotlib
 
         _import_matplotlib(pyplot=False)
+    ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
+                         dtype=jnp.float64)
+    char, _ = character.build_character(clip.skeleton, ground=ground)
+    options = tracking.tracking_options(char, float(motion.frame_time), args.samples)
+    if motion.num_frames < options.window + 1:
+        raise JaxanimError(f"{clip.label} has {motion.num_frames} frames from frame {args.from_frame}: too short for "
+                           f"one control window of {options.window} frames (need at least {options.window + 1})")
     frame_time = float(motion.frame_time)
     frames = int(round(args.seconds / frame_time)) + 1
     windows = (frames - 1) // options.window

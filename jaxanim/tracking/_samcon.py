@@ -226,9 +226,8 @@ def joint_sigma(character: Character, body: float = 0.15, upper: float = 0.05) -
     """Per physics joint sampling spreads for :class:`TrackingOptions` ``sigma``: ``upper`` for the
     joints that move an arm, the neck or the head (by the child joint's name), ``body`` for the legs
     and the spine, which carry the balance. Sampling the arms and head less keeps them close to the
-    clip (on the shipped walk, 4 s, with the earlier defaults kp 1000, w_pose 1: mean joint error 0.16 rad
-    instead of 0.19) while they still
-    help the balance (with 0.02 the walk fell)."""
+    clip (on the shipped walk, 4 s, with the earlier defaults kp 1000, w_pose 1: mean joint error
+    0.16 rad instead of 0.19) while they still help the balance (with 0.02 the walk fell)."""
     skel = character.skeleton
     child_joint = np.asarray(character.body_joint)[np.asarray(character.model.joints.child)]
     names = [skel.names[j].lower() for j in child_joint]
@@ -500,13 +499,13 @@ def _result(reference, options, start, corrections, states, frame_cost, errors, 
                           window_cost=costs, status=status, options=options)
 
 
-def _replay(character, reference, options, corrections, push, feedback):
+def _replay(character, reference, options, corrections, push, law: Feedback, nominal: BodyState):
     """Simulate the corrections from the start with ``push`` ``(body, force, first step, last step)``
-    and ``feedback`` ``(Feedback, nominal states)``; the :class:`TrackingResult` (without feedback)."""
+    and the feedback ``law`` around ``nominal``; the :class:`TrackingResult` (without feedback)."""
     problem = _problem(character, reference, options)
     start = problem.start_state()
     W = options.window
-    law = None if feedback is None else (feedback[0].gains, feedback[1], feedback[0].limit)
+    law = (law.gains, nominal, law.limit)
 
     def per_window(s, x):
         w, corr = x
@@ -558,9 +557,10 @@ def replay(
                        limit=jnp.zeros((), dtype), result=RESULTS.successful)
     else:
         law = result.feedback
-    replayed = _replay_jit(character, reference, options, result.corrections, push, (law, result.trajectory))
-    return eqx.tree_at(lambda r: r.feedback, replayed, None if law is not result.feedback else law,
-                       is_leaf=lambda x: x is None)
+    replayed = _replay_jit(character, reference, options, result.corrections, push, law, result.trajectory)
+    if law is not result.feedback:  # open loop
+        return replayed
+    return eqx.tree_at(lambda r: r.feedback, replayed, law, is_leaf=lambda x: x is None)
 
 
 _replay_jit = eqx.filter_jit(_replay)
