@@ -1,5 +1,6 @@
 """Skeletons and clips: :class:`Skeleton`, :class:`Motion`, BVH read / write, the shipped clip and
-clip operations (resampling, retargeting).
+clip operations (resampling, retargeting) and motion processing (facing frames, alignment,
+transitions, loops, inertialization, mirroring).
 """
 
 from ._skeleton import (
@@ -30,4 +31,16 @@ from ._default_clip import (
     default_skeleton as default_skeleton,
     make_default_clip as make_default_clip,
     write_default_clip as write_default_clip,
+)
+from ._processing import (
+    align as align,
+    concatenate as concatenate,
+    decay_spring as decay_spring,
+    facing_frame as facing_frame,
+    inertialize as inertialize,
+    make_loop as make_loop,
+    mirror as mirror,
+    mirror_pairs as mirror_pairs,
+    split_facing as split_facing,
+    transition as transition,
 )
