@@ -49,6 +49,7 @@ from ..skeleton._bvh import write_bvh
 from ..skeleton._skeleton import POSITION_CHANNELS
 from . import _cache
 from ._track import add_track_parser
+from ._motion import add_motion_parsers
 from ._common import (  # the 0.1 module held these: ``jaxanim.cli`` still offers them
     _PROG as _PROG,
     _UI as _UI,
@@ -318,6 +319,7 @@ def _build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_simulate)
 
     add_track_parser(sub, common, file_help)
+    add_motion_parsers(sub, common, file_help)
 
     p = sub.add_parser("demo", parents=[common], help="run the pipeline on the shipped clip, with timings",
                        description="Load the shipped walk clip, run forward kinematics of all frames in one batched "
