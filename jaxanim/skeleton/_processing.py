@@ -259,7 +259,8 @@ def align(motion_b: Motion, frame_b, motion_a: Motion, frame_a, *, up=(0.0, 1.0,
     _check_frames("motion_a", motion_a, 1)
     frame_b = _frame_index("frame_b", frame_b, motion_b.num_frames, "motion_b")
     frame_a = _frame_index("frame_a", frame_a, motion_a.num_frames, "motion_a")
-    return _align_jit(motion_b, frame_b, motion_a, frame_a, _up_tuple(up))
+    # frames as arrays: one compiled program serves every frame
+    return _align_jit(motion_b, jnp.asarray(frame_b), motion_a, jnp.asarray(frame_a), _up_tuple(up))
 
 
 @eqx.filter_jit
@@ -379,7 +380,11 @@ def concatenate(a: Motion, b: Motion, *, window: int = 0, up=(0.0, 1.0, 0.0)) ->
     _check_frame_times("a", a, "b", b)
     _check_frames("a", a, 1)
     _check_frames("b", b, 1)
-    window = _check_window(window, b.num_frames, b.num_frames, a.num_frames, 0)
+    if not _is_int(window) or int(window) < 0:
+        raise JaxanimError(f"window: expected a number of frames >= 0 (a Python int), got {window!r}")
+    if int(window) > b.num_frames:
+        raise JaxanimError(f"window: {int(window)} frames is longer than b ({b.num_frames} frames)")
+    window = int(window)
     return _transition(a, b, a.num_frames, 0, window, _up_tuple(up))
 
 
