@@ -314,6 +314,17 @@ def test_inertialize_is_c1(walk, mirrored):
     assert_close("root after 10 halflives", p[k:], tgt.translations[k:, 0], atol=1e-3)
 
 
+def test_inertialize_vmap_over_halflife_equals_loop(walk, mirrored):
+    _, src = walk
+    tgt = align(mirrored, 40, src, 40)
+    halflives = jnp.asarray([0.05, 0.1, 0.3])
+    batched = jax.jit(jax.vmap(lambda h: inertialize(src, tgt, 40, h)))(halflives)
+    for i, h in enumerate(halflives.tolist()):
+        one = inertialize(src, tgt, 40, h)  # the halflife is traced: the same program as in the C1 test
+        assert_close(f"rotations[{i}]", batched.rotations[i], one.rotations, atol=1e-13)
+        assert_close(f"translations[{i}]", batched.translations[i], one.translations, atol=1e-13)
+
+
 # ------------------------------------------------------------------------------------------------
 # Mirroring
 # ------------------------------------------------------------------------------------------------
