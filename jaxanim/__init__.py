@@ -4,7 +4,8 @@ Every algorithm is a pure function that solves one instance; batch with ``jax.vm
 
 The subpackages, from the bottom up (each imports only those above it in this list):
 ``rotations`` -> ``skeleton`` -> ``kinematics`` -> ``ik``; ``rotations`` -> ``physics`` ->
-``character`` (which also uses ``skeleton`` and ``kinematics``); ``app`` (CLI, plots) on top.
+``character`` (which also uses ``skeleton`` and ``kinematics``); ``skeleton`` and ``kinematics`` ->
+``matching`` (motion matching: features, database, search, controller); ``app`` (CLI, plots) on top.
 """
 
 from ._version import __version__ as __version__
@@ -16,6 +17,7 @@ from . import (
     character as character,
     ik as ik,
     kinematics as kinematics,
+    matching as matching,
     physics as physics,
     rotations as rotations,
     skeleton as skeleton,

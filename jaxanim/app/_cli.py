@@ -50,6 +50,7 @@ from ..skeleton._skeleton import POSITION_CHANNELS
 from . import _cache
 from ._track import add_track_parser
 from ._motion import add_motion_parsers
+from ._match import add_match_parser
 from ._common import (  # the 0.1 module held these: ``jaxanim.cli`` still offers them
     _PROG as _PROG,
     _UI as _UI,
@@ -320,6 +321,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
     add_track_parser(sub, common, file_help)
     add_motion_parsers(sub, common, file_help)
+    add_match_parser(sub, common)
 
     p = sub.add_parser("demo", parents=[common], help="run the pipeline on the shipped clip, with timings",
                        description="Load the shipped walk clip, run forward kinematics of all frames in one batched "

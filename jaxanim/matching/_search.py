@@ -1,0 +1,106 @@
+"""Exact nearest-neighbour search over a motion-matching database.
+
+The squared distance is expanded, ``|q - x|^2 = |q|^2 - 2 q.x + |x|^2``, so that a batch of queries
+(``jax.vmap`` over agents) against the database is one matrix product per chunk of rows. The rows are
+taken in chunks (a ``lax.scan``), which bounds the memory at ``agents x chunk`` distances; a running
+minimum keeps the lowest index on ties. Rows that are not searchable carry ``|x|^2 = +inf`` and are
+never returned.
+
+The expansion loses about ``eps * (|q|^2 + |x|^2)`` of absolute accuracy to cancellation, and a
+batched product sums in another order than a single one. So rows within ``64 eps (2 |q|^2 + |d| + 1)``
+of the minimum count as tied, and a tie goes to the lowest index: the first such row of a chunk,
+and a later chunk only if it is better by more than that. Then a single query and the same query
+in a batch return the same row (a database built from a periodic clip has exact duplicates).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jax import lax
+
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float, Int
+from ._database import MatchingDatabase
+
+__all__ = ["SearchResult", "search"]
+
+DEFAULT_CHUNK = 4096
+
+
+class SearchResult(eqx.Module):
+    """The nearest searchable row and its squared distance (in the normalised feature space)."""
+
+    index: Int[Array, ""]
+    distance: Float[Array, ""]
+
+
+def _tie(dtype):
+    return 64.0 * float(jnp.finfo(dtype).eps)
+
+
+def _first_near_min(d, tol):
+    """``(index, value)``: the first entry within ``tol`` of the minimum of ``d`` (exact ties and
+    round-off ties alike go to the lowest index, whatever the summation order)."""
+    m = jnp.min(d)
+    i = jnp.argmax(d <= m + tol).astype(jnp.int32)
+    return i, m
+
+
+def _search(features, squared_norms, query, chunk: int):
+    N, D = features.shape
+    dtype = features.dtype
+    q = query.astype(dtype)
+    qq = jnp.dot(q, q)
+    rtol = _tie(dtype)
+
+    def tol(m):
+        return rtol * (2.0 * qq + jnp.abs(m) + 1.0)
+
+    if N <= chunk:
+        d = squared_norms - 2.0 * (features @ q)
+        i, m = _first_near_min(d, tol(jnp.min(d)))
+        return i, jnp.maximum(m + qq, 0.0)
+    n = -(-N // chunk)
+    pad = n * chunk - N
+    X = jnp.concatenate([features, jnp.zeros((pad, D), dtype)]).reshape(n, chunk, D)
+    S = jnp.concatenate([squared_norms, jnp.full((pad,), jnp.inf, dtype)]).reshape(n, chunk)
+
+    def body(carry, xs):
+        best_d, best_i = carry
+        Xc, Sc, k = xs
+        d = Sc - 2.0 * (Xc @ q)
+        i, m = _first_near_min(d, tol(jnp.min(d)))
+        # a later chunk must be better beyond round-off (the first finite one always is)
+        better = jnp.where(jnp.isinf(best_d), m < best_d, m < best_d - tol(jnp.where(jnp.isinf(best_d), 0.0, best_d)))
+        return (jnp.where(better, m, best_d), jnp.where(better, k * chunk + i, best_i)), None
+
+    init = (jnp.asarray(jnp.inf, dtype), jnp.asarray(0, jnp.int32))
+    (best_d, best_i), _ = lax.scan(body, init, (X, S, jnp.arange(n, dtype=jnp.int32)))
+    return best_i, jnp.maximum(best_d + qq, 0.0)
+
+
+def search(db: MatchingDatabase, query: Float[Array, " features"], *, chunk: int = DEFAULT_CHUNK) -> SearchResult:
+    """The searchable row nearest to ``query`` (exact; ties go to the lowest index).
+
+    One query; batch over agents with ``jax.vmap(search, in_axes=(None, 0))``: the batched program is
+    one ``[agents, chunk] = [agents, features] x [features, chunk]`` product per chunk.
+
+    Args:
+        db: the database.
+        query: ``[features]`` normalised, weighted features (:func:`normalize_features` of a raw
+            vector, or a row of ``db.features``).
+        chunk: rows per step of the scan over the database (static); bounds the memory of a
+            batched call at ``agents x chunk`` distances.
+
+    Returns:
+        :class:`SearchResult` ``(index, distance)``: the row and its squared distance.
+
+    Raises:
+        JaxanimError: if ``query`` does not have the database's feature count.
+    """
+    check_shape("query", query, (db.num_features,), what=f"(features,) = ({db.num_features},)")
+    if int(chunk) < 1:
+        raise JaxanimError(f"chunk: expected a positive number of rows, got {chunk}")
+    i, d = _search(db.features, db.squared_norms, jnp.asarray(query), int(chunk))
+    return SearchResult(i, d)

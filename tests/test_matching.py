@@ -1,0 +1,343 @@
+"""Motion matching (jaxanim.matching; ``jaxanim match``), issue 14 part 2.
+
+One database for the file: the shipped walk and its mirror image (240 frames, 150 searchable). One
+controller shape is compiled for it (10 s = 301 frames, a 2-key input) and shared by the walk test
+and the CLI; the vmap test compiles the batched program once. Independent references: the search
+against a NumPy brute force (and ties to the lowest index); the features of a few frames against a
+NumPy forward kinematics and finite differences written here.
+"""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxanim
+from jaxanim import matching
+from jaxanim.app import _cli as cli
+
+SECONDS = 10.0
+FRAMES = 301  # 10 s at 30 fps
+_ATOL_FEATURES = 1e-9
+
+
+@pytest.fixture(scope="module")
+def walk():
+    skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())[:2]
+    return skel, motion
+
+
+@pytest.fixture(scope="module")
+def db(walk):
+    skel, motion = walk
+    return matching.build_database([motion], skel, mirror=True)
+
+
+def _constant(speed: float, yaw: float) -> matching.ControlInput:
+    v = speed * np.array([np.sin(yaw), np.cos(yaw)])
+    return matching.control_input([0.0, SECONDS], [v, v])
+
+
+@pytest.fixture(scope="module")
+def straight(db):
+    return matching.motion_matching(db, _constant(1.2, 0.4), FRAMES)
+
+
+# --- the search --------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def batched_search():
+    return jax.jit(jax.vmap(lambda d, q: matching.search(d, q, chunk=64), in_axes=(None, 0)))
+
+
+def _brute(features, searchable, queries):
+    d = ((queries[:, None, :] - features[None]) ** 2).sum(-1)
+    d[:, ~searchable] = np.inf
+    return d
+
+
+def test_search_equals_numpy_brute_force(db, batched_search):
+    X = np.asarray(db.features)
+    ok = np.asarray(db.searchable)
+    rng = np.random.default_rng(0)
+    rows = rng.integers(0, X.shape[0], 40)
+    queries = np.concatenate([X[rows] + 0.3 * rng.standard_normal((40, X.shape[1])),
+                              3.0 * rng.standard_normal((24, X.shape[1]))])
+    res = batched_search(db, jnp.asarray(queries))
+    d = _brute(X, ok, queries)
+    got = np.asarray(res.index)
+    best = d.min(1)
+    # the returned row is at the minimum distance (to round-off: the periodic walk repeats its cycle,
+    # so rows a cycle apart tie to ~1e-10) ...
+    np.testing.assert_allclose(d[np.arange(len(got)), got], best, rtol=1e-9, atol=1e-9, err_msg="distance of the row")
+    np.testing.assert_allclose(np.asarray(res.distance), best, rtol=1e-9, atol=1e-9, err_msg="distance")
+    # ... and is numpy's argmin wherever the runner-up is clearly farther
+    second = np.sort(d, axis=1)[:, 1]
+    clear = second > best * (1 + 1e-6) + 1e-9
+    assert clear.sum() >= 10
+    np.testing.assert_array_equal(got[clear], d.argmin(1)[clear], err_msg="index")
+    assert ok[got].all()
+    # random features (no near-ties), same shapes: exactly numpy's argmin
+    R = rng.standard_normal(X.shape)
+    res = batched_search(eqx_replace(db, R), jnp.asarray(queries))
+    np.testing.assert_array_equal(np.asarray(res.index), _brute(R, ok, queries).argmin(1), err_msg="index, random")
+    # a row of the database finds itself (searchable) at distance ~0
+    i = int(np.nonzero(ok)[0][7])
+    one = matching.search(db, db.features[i])
+    assert float(one.distance) < 1e-9 and np.allclose(np.asarray(db.features[int(one.index)]), np.asarray(db.features[i]))
+
+
+def test_search_ties_go_to_the_lowest_index(db, batched_search):
+    X = np.asarray(db.features).copy()
+    ok = np.asarray(db.searchable)
+    a, b = [int(i) for i in np.nonzero(ok)[0][[3, 120]]]  # b in a later chunk of 64 rows
+    X[b] = X[a]
+    tied = eqx_replace(db, X)
+    q = jnp.asarray(X[[a, b]])
+    res = batched_search(tied, q)
+    assert np.asarray(res.index).tolist() == [a, a]
+    unsearchable = int(np.nonzero(~ok)[0][0])  # a row that is not searchable is never returned
+    res = batched_search(db, jnp.asarray(np.asarray(db.features)[[unsearchable]]))
+    assert int(res.index[0]) != unsearchable and ok[int(res.index[0])]
+
+
+def eqx_replace(db, X):
+    import equinox as eqx
+
+    X = jnp.asarray(X)
+    sq = jnp.where(db.searchable, jnp.sum(X * X, axis=1), jnp.inf)
+    return eqx.tree_at(lambda d: (d.features, d.squared_norms), db, (X, sq))
+
+
+# --- the features -------------------------------------------------------------------------------------
+
+
+def _np_quat_matrix(q):
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _np_fk(skel, q, t):
+    R, P = [], []
+    for j, p in enumerate(skel.parents):
+        Rl = _np_quat_matrix(q[j])
+        if p < 0:
+            R.append(Rl)
+            P.append(t[j].copy())
+        else:
+            R.append(R[p] @ Rl)
+            P.append(P[p] + R[p] @ t[j])
+    return np.array(R), np.array(P)
+
+
+def test_features_match_an_independent_numpy_computation(walk, db):
+    skel, motion = walk
+    q = np.asarray(motion.rotations)
+    t = np.asarray(motion.translations)
+    dt = float(motion.frame_time)
+    feet = [skel.index("LeftFoot"), skel.index("RightFoot")]
+    assert db.layout.feet == tuple(feet)
+
+    def frame(f):
+        R, P = _np_fk(skel, q[f], t[f])
+        qr = q[f, 0]
+        yaw = 2 * np.arctan2(qr[2], qr[0])  # the twist of the root about y
+        return R, P, yaw
+
+    def to_facing(yaw, v):
+        c, s = np.cos(yaw), np.sin(yaw)
+        Ry = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+        return Ry.T @ v
+
+    raw = np.asarray(db.features) / np.where(np.asarray(db.scale) == 0, 1, np.asarray(db.scale)) + np.asarray(db.mean)
+    lay = db.layout
+    for f in (10, 41, 70):
+        Rm, Pm, _ = frame(f - 1)
+        R0, P0, yaw = frame(f)
+        Rp, Pp, _ = frame(f + 1)
+        origin = P0[0] * np.array([1, 0, 1])
+        row = raw[f]  # clip 0 comes first
+        v_root = (Pp[0] - Pm[0]) / (2 * dt)
+        np.testing.assert_allclose(row[lay.slice("root_velocity")], to_facing(yaw, v_root), atol=_ATOL_FEATURES,
+                                   err_msg=f"root_velocity, frame {f}")
+        dR = Rp[0] @ Rm[0].T
+        ang = np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))
+        axis = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+        w = axis / (2 * np.sin(ang)) * ang / (2 * dt) if ang > 1e-9 else axis / 2 / (2 * dt)
+        np.testing.assert_allclose(row[lay.slice("root_angular_velocity")], to_facing(yaw, w), atol=1e-7,
+                                   err_msg=f"root_angular_velocity, frame {f}")
+        pf = np.concatenate([to_facing(yaw, P0[j] - origin) for j in feet])
+        vf = np.concatenate([to_facing(yaw, (Pp[j] - Pm[j]) / (2 * dt)) for j in feet])
+        np.testing.assert_allclose(row[lay.slice("foot_positions")], pf, atol=_ATOL_FEATURES,
+                                   err_msg=f"foot_positions, frame {f}")
+        np.testing.assert_allclose(row[lay.slice("foot_velocities")], vf, atol=_ATOL_FEATURES,
+                                   err_msg=f"foot_velocities, frame {f}")
+        traj_p, traj_d = [], []
+        for k in (15, 30, 45):  # 0.5, 1.0, 1.5 s at 30 fps
+            _, Pk, yk = frame(f + k)
+            d = to_facing(yaw, Pk[0] * np.array([1, 0, 1]) - origin)
+            traj_p += [d[0], d[2]]
+            traj_d += [np.sin(yk - yaw), np.cos(yk - yaw)]
+        np.testing.assert_allclose(row[lay.slice("trajectory_positions")], traj_p, atol=_ATOL_FEATURES,
+                                   err_msg=f"trajectory_positions, frame {f}")
+        np.testing.assert_allclose(row[lay.slice("trajectory_directions")], traj_d, atol=_ATOL_FEATURES,
+                                   err_msg=f"trajectory_directions, frame {f}")
+        heights = np.array([P0[j][1] for j in feet])
+        speeds = np.linalg.norm(vf.reshape(2, 3), axis=1)
+        contact = (heights - float(db.ground) < float(db.contact_height)) & (speeds < float(db.contact_speed))
+        np.testing.assert_array_equal(row[lay.slice("foot_contacts")], contact.astype(float),
+                                      err_msg=f"foot_contacts, frame {f}")
+    # the searchable rows: every frame whose 1.5 s window ends inside its clip
+    n = motion.num_frames
+    assert np.asarray(db.searchable)[:n].tolist() == [f + 45 <= n - 1 for f in range(n)]
+    assert np.asarray(db.searchable).sum() == 2 * (n - 45)
+    # normalization: zero mean and, per block, mean deviation = weight over the searchable rows
+    X = np.asarray(db.features)[np.asarray(db.searchable)]
+    np.testing.assert_allclose(X.mean(0), 0.0, atol=1e-9)
+    w = matching.FeatureWeights()
+    for name, _ in lay.blocks:
+        sd = X[:, lay.slice(name)].std(0).mean()
+        if sd > 1e-9:
+            np.testing.assert_allclose(sd, float(getattr(w, name)), rtol=1e-9, err_msg=name)
+
+
+def test_feet_and_hands_detection_and_overrides(walk):
+    skel, _ = walk
+    assert [skel.names[j] for j in matching.detect_feet(skel)] == ["LeftFoot", "RightFoot"]
+    assert [skel.names[j] for j in matching.detect_hands(skel)] == ["LeftHand", "RightHand"]
+    assert matching.detect_feet(skel, ("LeftToeBase", "RightToeBase")) == (16, 20)
+    with pytest.raises(jaxanim.JaxanimError, match="feet: unknown joint 'LeftPaw'; valid joints"):
+        matching.detect_feet(skel, ("LeftPaw", "RightFoot"))
+    with pytest.raises(jaxanim.JaxanimError, match="hands: unknown joint 'Claw'"):
+        matching.detect_hands(skel, ("Claw", "RightHand"))
+
+
+def test_database_errors(walk, db):
+    skel, motion = walk
+    other = jaxanim.Skeleton(skel.names, skel.parents, np.asarray(skel.offsets) * 1.1, skel.channels,
+                             skel.end_site_parents, skel.end_site_offsets)
+    with pytest.raises(jaxanim.JaxanimError, match="b.bvh: its skeleton differs from the database's"):
+        matching.build_database([motion, motion], skel, skeletons=[skel, other], sources=["a.bvh", "b.bvh"])
+    with pytest.raises(jaxanim.JaxanimError, match="no frame can be searched"):
+        short = jaxanim.Motion(motion.rotations[:40], motion.translations[:40], motion.frame_time)
+        matching.build_database([short], skel)
+    with pytest.raises(jaxanim.JaxanimError, match="clip 1: expected 21 joints"):
+        matching.build_database([motion, jaxanim.Motion(motion.rotations[:, :3], motion.translations[:, :3],
+                                                        motion.frame_time)], skel)
+    with pytest.raises(jaxanim.JaxanimError, match="feet: unknown joint 'Paw'"):
+        matching.build_database([motion], skel, options=matching.FeatureOptions(feet=("Paw", "RightFoot")))
+    with pytest.raises(jaxanim.JaxanimError, match="key 2 .* follows"):
+        matching.control_input([0.0, 1.0, 1.0], np.ones((3, 2)))
+    with pytest.raises(jaxanim.JaxanimError, match="query: expected shape"):
+        matching.search(db, jnp.zeros(5))
+
+
+# --- the controller ---------------------------------------------------------------------------------
+
+
+def _max_rotation_change(q):
+    q = np.asarray(q)
+    return float((2 * np.arccos(np.clip(np.abs(np.sum(q[1:] * q[:-1], -1)), 0, 1))).max())
+
+
+def test_walk_follows_a_constant_input(walk, db, straight):
+    _, motion = walk
+    res = straight
+    root = np.asarray(res.motion.translations[:, 0])
+    assert res.motion.num_frames == FRAMES and abs(float(res.motion.frame_time) - 1 / 30) < 1e-12
+    moved = root[-1, [0, 2]] - root[0, [0, 2]]
+    speed = np.linalg.norm(moved) / SECONDS
+    heading = np.arctan2(moved[0], moved[1])
+    assert abs(speed - 1.2) < 0.25 * 1.2, f"speed {speed:.3f} vs 1.2"
+    assert abs(np.degrees(heading - 0.4)) < 20.0, f"heading {np.degrees(heading):.1f} deg vs {np.degrees(0.4):.1f}"
+    # smooth: the largest per-frame joint rotation change is at most 1.5x the database's own
+    own = _max_rotation_change(motion.rotations)
+    out = _max_rotation_change(res.motion.rotations)
+    assert out <= 1.5 * own, f"largest per-frame rotation change {out:.3f} rad vs the database's {own:.3f}"
+    # it searched on schedule (every 0.15 s = 5 frames... rounded: 4 or 5) and switched sometimes
+    searched = int(np.asarray(res.searched).sum())
+    assert FRAMES / 6 < searched <= FRAMES / 4 + 2
+    assert np.asarray(db.searchable)[np.asarray(res.rows)[np.asarray(res.switched)] - 1].all()
+
+
+def test_a_turn_is_followed(db):
+    """A 90° turn of the input (+z, then +x): the character ends up heading +x."""
+    inp = matching.control_input([0.0, SECONDS], [[0.0, 1.2], [1.2, 0.0]])
+    res = matching.motion_matching(db, inp, FRAMES)
+    root = np.asarray(res.motion.translations[:, 0])
+    late = root[-1, [0, 2]] - root[-46, [0, 2]]  # the last 1.5 s
+    assert abs(np.degrees(np.arctan2(late[0], late[1])) - 90.0) < 20.0
+    assert abs(float(res.yaw[-1]) - np.pi / 2) < np.radians(15)
+
+
+def test_vmap_over_agents_equals_a_loop(db):
+    yaws = (0.0, 1.0, -2.0)
+    speeds = (1.0, 1.3, 1.1)
+    inputs = [_constant(s, y) for s, y in zip(speeds, yaws)]
+    loop = [matching.motion_matching(db, i, FRAMES) for i in inputs]  # the program of `straight`
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *inputs)
+    batched = jax.vmap(lambda inp: matching.motion_matching(db, inp, FRAMES))(stacked)
+    for k, one in enumerate(loop):
+        np.testing.assert_array_equal(np.asarray(batched.rows[k]), np.asarray(one.rows), err_msg=f"rows, agent {k}")
+        np.testing.assert_allclose(np.asarray(batched.motion.rotations[k]), np.asarray(one.motion.rotations),
+                                   atol=1e-12, err_msg=f"rotations, agent {k}")
+        np.testing.assert_allclose(np.asarray(batched.motion.translations[k]), np.asarray(one.motion.translations),
+                                   atol=1e-12, err_msg=f"translations, agent {k}")
+
+
+# --- the command line ---------------------------------------------------------------------------------
+
+
+def _run(capsys, *argv):
+    code = cli.main(["--no-compile-cache", *(str(a) for a in argv)])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_match_command(tmp_path, capsys):
+    inp = tmp_path / "in.json"
+    v = 1.2 * np.array([np.sin(0.4), np.cos(0.4)])
+    inp.write_text(json.dumps({"velocity": [[0, *v], [SECONDS, *v]]}))
+    out = tmp_path / "out.bvh"
+    walk = jaxanim.default_clip_path()
+    code, stdout, stderr = _run(capsys, "match", walk, "--input", inp, "--seconds", SECONDS, "--out", out, "--mirror")
+    assert code == 0, stderr
+    assert "wrote" in stdout and "searches" in stdout
+    skel, motion = jaxanim.read_bvh(out)[:2]
+    assert motion.num_frames == FRAMES and skel.num_joints == 21 and abs(float(motion.frame_time) - 1 / 30) < 1e-9
+
+    def bad(name, content):
+        p = tmp_path / name
+        p.write_text(content if isinstance(content, str) else json.dumps(content))
+        return p
+
+    other = tmp_path / "other.bvh"
+    s, m = jaxanim.read_bvh(walk)[:2]
+    jaxanim.write_bvh(other, jaxanim.Skeleton(s.names, s.parents, np.asarray(s.offsets) * 2, s.channels,
+                                              s.end_site_parents, s.end_site_offsets), m)
+    good = bad("good.json", {"velocity": [[0, 0, 1]]})
+    for argv, message in (
+        ([walk, "--input", bad("a.json", {"speed": []})], "a.json: unknown field(s) ['speed']; valid fields"),
+        ([walk, "--input", bad("b.json", {"facing": [[0, 1, 0]]})], "b.json: missing field \"velocity\""),
+        ([walk, "--input", bad("c.json", {"velocity": [[0, 1, 0], [1, 2]]})], "c.json: velocity[1]: expected [t, vx, vz]"),
+        ([walk, "--input", bad("d.json", {"velocity": [[0, 1, 0], [2, 1, 0], [1, 1, 0]]})],
+         "d.json: velocity[2]: times must increase, but t = 1 follows t = 2"),
+        ([walk, "--input", bad("e.json", {"velocity": [[0, 1, 0]], "facing": [[0, 0, 0]]})],
+         "e.json: facing[0]: a zero vector"),
+        ([walk, "--input", bad("f.json", "[1, 2")], "f.json:1: not valid JSON"),
+        ([walk, "--input", bad("g.json", [1, 2])], "g.json: expected a JSON object"),
+        ([walk, "--input", tmp_path / "missing.json"], "missing.json: cannot read it"),
+        ([walk, other, "--input", good], "other.bvh: its skeleton differs from the database's"),
+        ([walk, "--input", good, "--seconds", "0"], "--seconds: expected a positive finite number"),
+    ):
+        argv = [*argv, "--out", out] + ([] if "--seconds" in argv else ["--seconds", 1])
+        code, _, stderr = _run(capsys, "match", *argv)
+        assert code == 2 and message in stderr, stderr
+        assert stderr.startswith("error: ") or "\nerror: " in stderr
