@@ -332,7 +332,8 @@ def test_inertialize_vmap_over_halflife_equals_loop(walk, mirrored):
 
 def test_mirror_pairs_by_name():
     names = ("Hips", "LeftArm", "RightArm", "lShoulder", "rShoulder", "Hand_L", "Hand_R", "LHipJoint", "RHipJoint",
-             "mixamorig:LeftEye", "mixamorig:RightEye", "LowerBack", "Leg", "arm.l", "arm.r", "SPINE_LEFT", "SPINE_RIGHT")
+             "mixamorig:LeftEye", "mixamorig:RightEye", "LowerBack", "Leg", "arm.l", "arm.r", "SPINE_LEFT", "SPINE_RIGHT",
+             "lhand", "rhand")
     skel = Skeleton(names, (-1,) + (0,) * (len(names) - 1), np.zeros((len(names), 3)))
     pairs = mirror_pairs(skel)
     got = {names[i]: names[p] for i, p in enumerate(pairs)}
@@ -340,7 +341,8 @@ def test_mirror_pairs_by_name():
                    "rShoulder": "lShoulder", "Hand_L": "Hand_R", "Hand_R": "Hand_L", "LHipJoint": "RHipJoint",
                    "RHipJoint": "LHipJoint", "mixamorig:LeftEye": "mixamorig:RightEye",
                    "mixamorig:RightEye": "mixamorig:LeftEye", "LowerBack": "LowerBack", "Leg": "Leg",
-                   "arm.l": "arm.r", "arm.r": "arm.l", "SPINE_LEFT": "SPINE_RIGHT", "SPINE_RIGHT": "SPINE_LEFT"}
+                   "arm.l": "arm.r", "arm.r": "arm.l", "SPINE_LEFT": "SPINE_RIGHT", "SPINE_RIGHT": "SPINE_LEFT",
+                   "lhand": "rhand", "rhand": "lhand"}
     lonely = Skeleton(("Hips", "LeftArm", "Arm"), (-1, 0, 0), np.zeros((3, 3)))
     with pytest.raises(JaxanimError, match=r"'LeftArm' \(no 'RightArm'\)"):
         mirror_pairs(lonely)

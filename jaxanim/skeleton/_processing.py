@@ -62,7 +62,6 @@ def _up_tuple(up) -> tuple[float, float, float]:
     return tuple(float(x) for x in u / n)
 
 
-
 def _check_motion(name: str, motion) -> None:
     if not isinstance(motion, Motion):
         raise JaxanimError(f"{name}: expected a jaxanim Motion, got {type(motion).__name__}")
@@ -349,7 +348,8 @@ def transition(a: Motion, b: Motion, frame_a: int, frame_b: int, window: int, *,
     _check_frame_times("a", a, "b", b)
     _check_frames("a", a, 1)
     _check_frames("b", b, 1)
-    frame_a = _static_int("frame_a", frame_a, 0, a.num_frames, f"a has {a.num_frames} frames and the switch may be at its end")
+    frame_a = _static_int("frame_a", frame_a, 0, a.num_frames,
+                          f"a has {a.num_frames} frames and the switch may be at its end")
     frame_b = _static_int("frame_b", frame_b, 0, b.num_frames - 1, f"b has {b.num_frames} frames")
     window = _check_window(window, a.num_frames - frame_a, b.num_frames - frame_b, frame_a, frame_b)
     return _transition(a, b, frame_a, frame_b, window, _up_tuple(up))
@@ -409,7 +409,7 @@ def make_loop(motion: Motion, *, up=(0.0, 1.0, 0.0)) -> Motion:
     these ``x`` the residual is the wrap step minus the mean of the clip's first and last steps,
     ``r = (x_0 - x_{F-1}) - ((x_{F-1} - x_{F-2}) + (x_1 - x_0)) / 2`` (rotations: rotation vectors,
     composed on the left), and frame ``i`` gets ``i / (F - 1)`` of it, so frame 0 is unchanged and
-    the wrap step becomes the mean of its neighbours. Root headings and ground positions are kept.
+    the wrap step becomes the mean of its neighbors. Root headings and ground positions are kept.
 
     Args:
         motion: the clip, at least 2 frames.
@@ -588,19 +588,33 @@ def _side_partner(name: str) -> str | None:
     return None
 
 
+def _lenient_partner(name: str, index: dict, lower: dict, default: int) -> int:
+    swap = {"L": "R", "R": "L", "l": "r", "r": "l"}
+    for k in (0, len(name) - 1):
+        if len(name) > 1 and name[k] in swap:
+            other = name[:k] + swap[name[k]] + name[k + 1:]
+            if other in index:
+                return index[other]
+            if len(lower.get(other.lower(), [])) == 1:
+                return lower[other.lower()][0]
+    return default
+
+
 def mirror_pairs(skeleton: Skeleton, overrides: Mapping[str, str] | None = None) -> tuple[int, ...]:
-    """Each joint's left / right partner, found by name (itself for a joint on the centre line).
+    """Each joint's left / right partner, found by name (itself for a joint on the center line).
 
     A side is marked by the words ``Left`` / ``Right`` anywhere in the name (``LeftArm``,
     ``mixamorig:RightHand``, ``arm_left``; any case), else by one letter ``L`` / ``R`` at the start
     before a separator or a capital (``LHipJoint``, ``lShoulder``, ``l_hand``) or at the end after a
     separator or a small letter (``Hand_L``, ``hand.r``, ``HandR``). The partner's name swaps the
-    marker, keeping its case (matched case-insensitively when no exact match exists).
+    marker, keeping its case (matched case-insensitively when no exact match exists). A name with
+    none of these pairs by its first or last letter only when the swapped name exists (``lhand`` /
+    ``rhand``; ``Leg`` stays centered).
 
     Args:
         skeleton: the skeleton.
         overrides: ``{name: partner name}`` for names the rules miss or get wrong (each pair is
-            applied both ways; a name mapped to itself is centred).
+            applied both ways; a name mapped to itself is centered).
 
     Returns:
         ``pairs``: a tuple of joint indices, ``pairs[j]`` the partner of joint ``j``; an involution
@@ -632,8 +646,8 @@ def mirror_pairs(skeleton: Skeleton, overrides: Mapping[str, str] | None = None)
             pairs.append(fixed[i])
             continue
         partner = _side_partner(n)
-        if partner is None:
-            pairs.append(i)
+        if partner is None:  # a one-letter side without a separator (lhand / rhand): only if both exist
+            pairs.append(_lenient_partner(n, index, lower, i))
         elif partner in index:
             pairs.append(index[partner])
         elif len(lower.get(partner.lower(), [])) == 1:
@@ -643,7 +657,8 @@ def mirror_pairs(skeleton: Skeleton, overrides: Mapping[str, str] | None = None)
             pairs.append(i)
     if missing:
         raise JaxanimError("mirror_pairs: joints on one side without a partner on the other: "
-                           + ", ".join(missing) + "; pass overrides={name: partner} (a name mapped to itself is centred)")
+                           + ", ".join(missing)
+                           + "; pass overrides={name: partner} (a name mapped to itself is centered)")
     bad = [f"{names[i]!r} -> {names[p]!r} -> {names[pairs[p]]!r}" for i, p in enumerate(pairs) if pairs[p] != i]
     if bad:
         raise JaxanimError("mirror_pairs: partners must pair up both ways, got " + ", ".join(bad))
