@@ -91,8 +91,9 @@ def _same_rotation(name, q1, q2, atol):
 
 
 def _angles(q1, q2) -> np.ndarray:
-    """Angle between rotations (radians), by scipy."""
-    return (_R(q1) * _R(q2).inv()).magnitude()
+    """Angle between rotations (radians), by scipy, any batch shape."""
+    q1, q2 = np.broadcast_arrays(np.asarray(q1, np.float64), np.asarray(q2, np.float64))
+    return (_R(q1.reshape(-1, 4)) * _R(q2.reshape(-1, 4)).inv()).magnitude().reshape(q1.shape[:-1])
 
 
 def _steps(p) -> np.ndarray:
@@ -232,6 +233,24 @@ def test_transition(walk, mirrored):
     assert float(_angles(out.rotations[_FA + _W - 1, 6], b.rotations[_FB + _W - 1, 6])) > 0
 
 
+def test_concatenate_blends_past_the_end(walk, mirrored):
+    _, a = walk
+    b = _turn(mirrored, -0.7, [1.0, 0.0, 1.0])
+    out = concatenate(a, b, window=8)
+    F = a.num_frames
+    assert out.num_frames == F + b.num_frames
+    assert_close("A's frames", out.translations[:F], a.translations)
+    # A's continuation past its end: its last frame, the root carried on by its last ground step
+    step = np.asarray(a.translations[F - 1, 0] - a.translations[F - 2, 0]) * np.array([1.0, 0.0, 1.0])
+    assert_close("switch frame: A extrapolated", out.translations[F, 0], np.asarray(a.translations[F - 1, 0]) + step,
+                 atol=_ATOL)
+    _same_rotation("switch frame: A's last rotations", out.rotations[F], a.rotations[F - 1], _ATOL)
+    assert_close("after the window: B's joints", out.rotations[F + 8:, 1:], b.rotations[8:, 1:])
+    p = np.asarray(out.translations[:, 0])
+    own = max(_steps(a.translations[:, 0]).max(), _steps(b.translations[:, 0]).max())
+    assert _steps(p[F - 3:F + 10]).max() <= _CONT * own
+
+
 # ------------------------------------------------------------------------------------------------
 # Loops (and concatenate, which plays the loop again)
 # ------------------------------------------------------------------------------------------------
@@ -250,7 +269,7 @@ def test_make_loop_wraps_smoothly(walk):
     assert_close("second half: the loop's own joints", twice.rotations[F:, 1:], loop.rotations[:, 1:])
     # the wrap (frame F - 1 -> F) against the loop's own per-frame changes, every joint and the root
     q = np.asarray(twice.rotations)
-    own = np.stack([_angles(q[i + 1], q[i]) for i in range(F - 1)])  # [F - 1, J]
+    own = _angles(q[1:F], q[:F - 1])  # [F - 1, J]
     wrap = _angles(q[F], q[F - 1])
     assert (wrap <= _CONT * own.max(axis=0) + 1e-12).all(), ("rotation jump at the wrap", wrap, own.max(axis=0))
     p = np.asarray(twice.translations[:, 0])
@@ -258,7 +277,7 @@ def test_make_loop_wraps_smoothly(walk):
     assert _accels(p[F - 3:F + 2]).max() <= _CONT * _accels(p[:F]).max()
     # without make_loop the same wrap jumps (the test means something)
     q0 = np.asarray(concatenate(clip, clip).rotations)
-    own0 = np.stack([_angles(q0[i + 1], q0[i]) for i in range(F - 1)])
+    own0 = _angles(q0[1:F], q0[:F - 1])
     assert (_angles(q0[F], q0[F - 1]) > _CONT * own0.max(axis=0)).any()
 
 
