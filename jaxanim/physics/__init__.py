@@ -46,7 +46,7 @@ from ._model import (
     joint_error as joint_error,
     make_model as make_model,
 )
-from ._step import step as step
+from ._step import spd_torques as spd_torques, step as step
 from ._rollout import (
     Rollout as Rollout,
     SimResult as SimResult,

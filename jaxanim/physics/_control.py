@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -42,11 +43,16 @@ class StablePD(eqx.Module):
             parent (wxyz, ``q_p^{-1} q_c``; normalized by the step).
         kp: ``[joints]`` (or a scalar) stiffness, N m / rad.
         kd: ``[joints]`` (or a scalar) damping, N m s / rad (``kp = kd = 0``: that joint is not driven).
+        torque_limit: optional ``[joints]`` (or a scalar) bound on the norm of each joint's
+            stable-PD torque, N m (``inf``: unbounded). A joint whose implicit torque would exceed
+            it gets that torque scaled onto the bound instead, applied explicitly (one active-set
+            pass: the step solves the constraints once more). ``None``: no bound, one solve.
     """
 
     targets: Float[Array, "joints 4"] = eqx.field(converter=jnp.asarray)
     kp: Float[Array, "#joints"] = eqx.field(converter=jnp.asarray)
     kd: Float[Array, "#joints"] = eqx.field(converter=jnp.asarray)
+    torque_limit: Float[Array, "#joints"] | None = eqx.field(default=None, converter=_optional_array)
 
 
 class Servo(eqx.Module):
@@ -89,19 +95,34 @@ class Control(eqx.Module):
 
 
 _KEYS = ("force", "torque", "joint_torque", "spd", "servo")
-_SPD_FORM = "spd: expected StablePD(targets [J, 4], kp [J], kd [J]) or the tuple (targets, kp, kd)"
+_SPD_FORM = ("spd: expected StablePD(targets [J, 4], kp [J], kd [J][, torque_limit [J]]) or the tuple "
+             "(targets, kp, kd[, torque_limit])")
 _SERVO_FORM = ("servo: expected Servo(body, position [3], orientation [4], kp_linear, kd_linear, kp_angular, "
                "kd_angular) or the tuple (body, position [3], orientation [4], kp_lin, kd_lin, kp_ang, kd_ang)")
 
 
 def _as_spd(spd, num_joints: int, dtype) -> StablePD:
     if not isinstance(spd, StablePD):
-        if not (isinstance(spd, (tuple, list)) and len(spd) == 3):
+        if not (isinstance(spd, (tuple, list)) and len(spd) in (3, 4)):
             raise JaxanimError(_SPD_FORM)
         spd = StablePD(*spd)
     targets, kp, kd = (jnp.asarray(a, dtype) for a in (spd.targets, spd.kp, spd.kd))
     check_shape("spd targets", targets, (num_joints, 4), what=f"(J, 4) = ({num_joints}, 4)")
-    return StablePD(targets, jnp.broadcast_to(kp, (num_joints,)), jnp.broadcast_to(kd, (num_joints,)))
+    gains = [_per_joint(f"spd {name}", g, num_joints) for name, g in (("kp", kp), ("kd", kd))]
+    limit = spd.torque_limit
+    if limit is not None:
+        limit = _per_joint("spd torque_limit", jnp.asarray(limit, dtype), num_joints)
+        if not isinstance(limit, jax.core.Tracer) and bool(jnp.any(jnp.isnan(limit) | (limit < 0))):
+            raise JaxanimError(f"spd torque_limit: expected non-negative N m (inf for no bound), got {limit}")
+    return StablePD(targets, *gains, limit)
+
+
+def _per_joint(name: str, value: Array, num_joints: int) -> Array:
+    """``value`` (a scalar or ``[joints]``) broadcast to ``[joints]``, or a clear error."""
+    if value.ndim > 1 or (value.ndim == 1 and value.shape[0] not in (1, num_joints)):
+        raise JaxanimError(f"{name}: expected a scalar or shape ({num_joints},) (one per joint), got shape "
+                           f"{tuple(value.shape)}")
+    return jnp.broadcast_to(value, (num_joints,))
 
 
 def _as_servo(servo, num_bodies: int, dtype) -> Servo:

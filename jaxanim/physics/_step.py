@@ -22,7 +22,7 @@ from ._joints import joint_errors, joint_rows, limit_rows
 from ._model import PhysicsModel
 from ._tree_solve import _plan, _tree_solve
 
-__all__ = ["step"]
+__all__ = ["spd_torques", "step"]
 
 
 def _apply_joint_torques(model: PhysicsModel, torque: Array, joint_torque: Array) -> Array:
@@ -144,18 +144,20 @@ def _one_sided_rows(model: PhysicsModel, state: BodyState, h):
 
 def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd: StablePD | None,
                        servo: Servo | None):
-    """Velocities after the joint, stable-PD, servo and (complementarity) contact impulses.
+    """Velocities after the joint, stable-PD, servo and (complementarity) contact impulses, and the
+    stable-PD torques applied (``[joints, 3]``, world frame; ``None`` without ``spd``).
 
     The joints (with their stable-PD rows) are solved exactly by :func:`_tree_solve`; the servo's
     soft rows on one body are folded into that body's inertia; the one-sided rows' effect is found
     by the same solve for each row (their Delassus matrix ``A = J_u H^{-1} J_u'`` with the joints
-    eliminated exactly) and projected Gauss-Seidel on ``A``.
+    eliminated exactly) and projected Gauss-Seidel on ``A``. A stable PD with a ``torque_limit`` is
+    then bounded by :func:`_limit_torques`.
     """
     dtype = v.dtype
     B = model.bodies.num_bodies
     Jn = model.joints.num_joints
     if Jn == 0 and servo is None and model.ground.model != "complementarity":
-        return v, w
+        return v, w, None
     M, p = _inertia_and_momentum(model, state, v, w, I_n, h, servo)
     if Jn:
         Jp, Jc, b, C = _joint_blocks(model, state, h, spd)
@@ -164,8 +166,22 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd:
         b, C = jnp.zeros((0, 1), dtype), jnp.ones((0, 1), dtype)
     plan = _plan(model.joints.parent, model.joints.child, B)
     one_sided = _one_sided_rows(model, state, h)
+    V = _solve_rows(model, plan, one_sided, M, p, Jp, Jc, b, C)
+    if spd is None or not Jn:
+        return _split(V) + (None,)
+    if spd.torque_limit is None:
+        return _split(V) + (_spd_torques(model, Jp, Jc, b, C, V, h),)
+    V, tau = _limit_torques(model, plan, one_sided, M, p, Jp, Jc, b, C, V, spd.torque_limit, h)
+    return _split(V) + (tau,)
+
+
+def _solve_rows(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C):
+    """``V [bodies, 6]``: the tree solve of the joint rows, then the one-sided rows by projected
+    Gauss-Seidel on their Delassus matrix (see :func:`_solve_constraints`)."""
+    dtype = M.dtype
+    B = M.shape[0]
     if one_sided is None:
-        return _split(_tree_solve(plan, M, p[..., None], Jp, Jc, b[..., None], C, model.scan_levels)[..., 0])
+        return _tree_solve(plan, M, p[..., None], Jp, Jc, b[..., None], C, model.scan_levels)[..., 0]
     owner_a, rows_a, target, L, owner_b, rows_b = one_sided
     U = target.shape[0]
     cols = jnp.zeros((B, 6, U), dtype).at[owner_a, :, np.arange(U)].add(rows_a)  # J_u'
@@ -182,7 +198,54 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd:
         rhs = rhs.at[U - L:].add(-jnp.einsum("uj,uj->u", rows_b, V0[owner_b]))
     A = 0.5 * (A + A.T) + model.cfm * jnp.eye(U, dtype=dtype)
     lam = projected_gauss_seidel(A, rhs, model.ground.friction, model.ground.iterations, num_single=L)
-    return _split(V0 + jnp.einsum("bjv,v->bj", Y, lam))
+    return V0 + jnp.einsum("bjv,v->bj", Y, lam)
+
+
+def _spd_torques(model: PhysicsModel, Jp, Jc, b, C, V, h):
+    """``[joints, 3]`` the stable-PD torques (world frame, N m) that the velocities ``V`` imply:
+    the impulse of each soft row ``J V + C lambda = b`` is ``lambda = (b - J V) / C`` and the
+    torque ``lambda / h`` (the last 3 rows of each joint's block, :func:`_joint_blocks`)."""
+    par = np.asarray(model.joints.parent)
+    chi = np.asarray(model.joints.child)
+    Vp = jnp.where(jnp.asarray(par >= 0)[:, None], V[np.maximum(par, 0)], 0.0)
+    Jv = jnp.einsum("jkc,jc->jk", Jc[:, -3:], V[chi]) + jnp.einsum("jkc,jc->jk", Jp[:, -3:], Vp)
+    return (b[:, -3:] - Jv) / (C[:, -3:] * h)
+
+
+def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, V, limit, h):
+    """Bound the stable-PD torques' norms by ``limit [joints]`` (N m), an active-set correction of
+    the unbounded solve ``V``: each joint whose implied torque exceeds its limit gets that torque
+    scaled onto the limit as a fixed joint torque in place of its stable-PD rows, and the system is
+    solved again; :data:`_LIMIT_PASSES` passes, a saturated joint staying saturated. Joints under
+    their limit keep the implicit (stable) law. Returns ``(V, torques [joints, 3])``: the fixed
+    torques of the saturated joints and the implicit ones of the others."""
+    par = np.asarray(model.joints.parent)
+    chi = np.asarray(model.joints.child)
+    has_parent = par >= 0
+    limit = jnp.maximum(limit, 0.0)
+    saturated = jnp.zeros(limit.shape, bool)
+    fixed = jnp.zeros((limit.shape[0], 3), V.dtype)
+    for _ in range(_LIMIT_PASSES):
+        tau = _spd_torques(model, Jp, Jc, b, C, V, h)
+        norm = jnp.linalg.norm(tau, axis=-1)
+        over = ~saturated & (norm > limit)
+        scale = limit / jnp.where(over, norm, 1.0)
+        fixed = jnp.where(over[:, None], tau * scale[:, None], fixed)
+        saturated = saturated | over
+        off = saturated[:, None]
+        b = b.at[:, -3:].set(jnp.where(off, 0.0, b[:, -3:]))
+        C = C.at[:, -3:].set(jnp.where(off, 1.0, C[:, -3:]))
+        Jc = Jc.at[:, -3:].set(jnp.where(off[..., None], 0.0, Jc[:, -3:]))
+        Jp = Jp.at[:, -3:].set(jnp.where(off[..., None], 0.0, Jp[:, -3:]))
+        q = p.at[chi, 3:].add(h * fixed)
+        if np.any(has_parent):
+            q = q.at[par[has_parent], 3:].add(-h * fixed[np.nonzero(has_parent)[0]])
+        V = _solve_rows(model, plan, one_sided, M, q, Jp, Jc, b, C)
+    tau = jnp.where(saturated[:, None], fixed, _spd_torques(model, Jp, Jc, b, C, V, h))
+    return V, tau
+
+
+_LIMIT_PASSES = 2
 
 
 def _split(V):
@@ -191,6 +254,12 @@ def _split(V):
 
 def _step(model: PhysicsModel, state: BodyState, control: Control, h) -> BodyState:
     """One step with a checked :class:`Control` (every load filled in: :func:`_as_control`)."""
+    return _step_and_torques(model, state, control, h)[0]
+
+
+def _step_and_torques(model: PhysicsModel, state: BodyState, control: Control, h):
+    """:func:`_step` and the stable-PD torques it applied (``[joints, 3]`` world frame, N m, or
+    ``None`` without ``control.spd``)."""
     force, torque = control.force, control.torque
     if model.joints.num_joints:
         torque = _apply_joint_torques(model, torque, control.joint_torque)
@@ -198,8 +267,8 @@ def _step(model: PhysicsModel, state: BodyState, control: Control, h) -> BodySta
         f_c, tau_c = penalty_loads(model.ground, model.bodies, state)
         force, torque = force + f_c, torque + tau_c
     v, w, I_n = _free_velocities(model.bodies, state, force, torque, h)
-    v, w = _solve_constraints(model, state, v, w, I_n, h, control.spd, control.servo)
-    return _integrate(model.bodies, state, v, w, I_n, h)
+    v, w, tau = _solve_constraints(model, state, v, w, I_n, h, control.spd, control.servo)
+    return _integrate(model.bodies, state, v, w, I_n, h), tau
 
 
 def _check_state(model: PhysicsModel, state: BodyState) -> None:
@@ -265,3 +334,21 @@ def step(
                            servo=servo)
     _check_state(model, state)
     return _step_jit(model, state, control, jnp.asarray(dt, model.bodies.mass.dtype))
+
+
+@eqx.filter_jit
+def _spd_torques_jit(model, state, control, h):
+    return _step_and_torques(model, state, control, h)[1]
+
+
+def spd_torques(
+    model: PhysicsModel, state: BodyState, dt: Float[ArrayLike, ""], control: Control | Mapping | None = None, **keywords
+) -> Float[Array, "joints 3"]:
+    """The stable-PD torques (world frame, N m, ``+tau`` on each joint's child) that
+    ``step(model, state, dt, control)`` applies: the implicit law's torques, or for a joint held at
+    its ``torque_limit`` the bounded torque. Zeros without ``spd``. Takes the arguments of
+    :func:`step` (the same checks and errors)."""
+    control = _control_for(model, control, **keywords)
+    _check_state(model, state)
+    tau = _spd_torques_jit(model, state, control, jnp.asarray(dt, model.bodies.mass.dtype))
+    return jnp.zeros((model.joints.num_joints, 3), model.bodies.mass.dtype) if tau is None else tau
