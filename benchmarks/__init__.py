@@ -96,6 +96,8 @@ REGISTRY: dict[str, BenchmarkSpec] = {s.name: s for s in (
                   "~20-body character standing under PD control: jaxanim (penalty, complementarity), MuJoCo C, MJX"),
     BenchmarkSpec("tracking", "benchmarks.tracking:run_tracking",
                   "SAMCON tracking of the shipped walk: samples/s vs MuJoCo C rollouts of the batch, time to track 4 s"),
+    BenchmarkSpec("matching", "benchmarks.matching:run_matching",
+                  "motion matching: search of 1024 agents x 100k frames vs cKDTree and numpy; a 1024-agent crowd"),
     BenchmarkSpec("profile", "benchmarks.profile:run_profile",
                   "where the time goes: jax.profiler traces of the kernels behind the speed targets"),
     BenchmarkSpec("scaling", "benchmarks.scaling:run_scaling",

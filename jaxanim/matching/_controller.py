@@ -10,7 +10,8 @@ Per output frame (time ``t``):
    forms, stepped twice per interval with the input sampled ahead;
 2. the **query** is the current database row's pose features with the predicted trajectory in the
    character's facing frame in place of the row's own;
-3. a **search** runs every ``search_period`` seconds, and at once when the desired velocity or
+3. a **search** runs every ``search_period`` seconds (on frames that are multiples of it, the same
+   for every agent), and at once when the desired velocity or
    facing moved away from those of the last search by more than ``velocity_change`` or
    ``facing_change``, or when the current row is its clip's last. The character switches to the
    found row (and plays on from the frame after it) when the row is better than the current one;
@@ -184,7 +185,6 @@ class MatchResult(eqx.Module):
 
 class _State(eqx.Module):
     row: Array
-    counter: Array
     last_velocity: Array
     last_yaw: Array
     root: Array  # [3] facing origin in the world
@@ -322,6 +322,7 @@ def _pose(db: MatchingDatabase, state: _State):
 def _run(db: MatchingDatabase, inputs: ControlInput, num_frames: int, start_position, start_yaw, o: ControllerOptions):
     dt = db.frame_time
     dtype = db.features.dtype
+    o = jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, o)
     times = db.layout.trajectory_times
     J = db.rotations.shape[1]
     maybe_search = _maybe_search_fn(o.chunk)
@@ -333,7 +334,7 @@ def _run(db: MatchingDatabase, inputs: ControlInput, num_frames: int, start_posi
     yaw0 = jnp.where(jnp.isnan(start_yaw), yaw_in0, start_yaw)
     zero2 = jnp.zeros(2, dtype)
     state = _State(
-        row=jnp.asarray(0, jnp.int32), counter=jnp.asarray(0, jnp.int32), last_velocity=v0, last_yaw=yaw_in0,
+        row=jnp.asarray(0, jnp.int32), last_velocity=v0, last_yaw=yaw_in0,
         root=jnp.stack([start_position[0], jnp.zeros((), dtype), start_position[1]]), yaw=yaw0,
         sim_position=start_position, sim_velocity=v0, sim_acceleration=zero2, sim_yaw=yaw0,
         sim_yaw_rate=jnp.zeros((), dtype), off_rotation=jnp.zeros((J, 3), dtype), off_angular=jnp.zeros((J, 3), dtype),
@@ -357,7 +358,9 @@ def _run(db: MatchingDatabase, inputs: ControlInput, num_frames: int, start_posi
         row = state.row
         changed = ((jnp.linalg.norm(v_goal - state.last_velocity) > o.velocity_change * db.mean_speed)
                    | (jnp.abs(yaw_goal - state.last_yaw) > o.facing_change))
-        due = db.last[row] | changed | (state.counter + 1 >= interval)
+        # scheduled searches on a clock shared by all agents (frames interval, 2 interval, ...), so
+        # that in a crowd they fall on the same frames; forced ones whenever needed
+        due = db.last[row] | changed | ((i + 1) % interval == 0)
         p, y = _predict(inputs, t, state, times, o)
         query = _query(db, row, _trajectory_raw(p, y, sx, state.yaw))
         best, best_d = maybe_search(db.features, db.squared_norms, query, due)
@@ -399,7 +402,7 @@ def _run(db: MatchingDatabase, inputs: ControlInput, num_frames: int, start_posi
         gap = gap * jnp.where(n > limit, limit / jnp.where(n > 0, n, 1.0), 1.0)
         root = root + jnp.stack([gap[0], jnp.zeros((), dtype), gap[1]])
         state = _State(
-            row=new_row, counter=jnp.where(due, 0, state.counter + 1), last_velocity=jnp.where(due, v_goal,
+            row=new_row, last_velocity=jnp.where(due, v_goal,
             state.last_velocity), last_yaw=jnp.where(due, yaw_goal, state.last_yaw), root=root, yaw=yaw,
             sim_position=sx, sim_velocity=sv, sim_acceleration=sa, sim_yaw=sy, sim_yaw_rate=sr,
             off_rotation=off_q, off_angular=off_w, off_position=off_p, off_velocity=off_v)

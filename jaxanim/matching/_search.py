@@ -7,7 +7,7 @@ minimum keeps the lowest index on ties. Rows that are not searchable carry ``|x|
 never returned.
 
 The expansion loses about ``eps * (|q|^2 + |x|^2)`` of absolute accuracy to cancellation, and a
-batched product sums in another order than a single one. So rows within ``64 eps (2 |q|^2 + |d| + 1)``
+batched product sums in another order than a single one. So rows within ``8 eps (2 |q|^2 + |d| + 1)``
 of the minimum count as tied, and a tie goes to the lowest index: the first such row of a chunk,
 and a later chunk only if it is better by more than that. Then a single query and the same query
 in a batch return the same row (a database built from a periodic clip has exact duplicates).
@@ -25,7 +25,7 @@ from ._database import MatchingDatabase
 
 __all__ = ["SearchResult", "search"]
 
-DEFAULT_CHUNK = 4096
+DEFAULT_CHUNK = 1024
 
 
 class SearchResult(eqx.Module):
@@ -36,7 +36,7 @@ class SearchResult(eqx.Module):
 
 
 def _tie(dtype):
-    return 64.0 * float(jnp.finfo(dtype).eps)
+    return 8.0 * float(jnp.finfo(dtype).eps)
 
 
 def _first_near_min(d, tol):
