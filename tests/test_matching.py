@@ -69,6 +69,7 @@ def test_search_equals_numpy_brute_force(db, batched_search):
     queries = np.concatenate([X[rows] + 0.3 * rng.standard_normal((40, X.shape[1])),
                               3.0 * rng.standard_normal((24, X.shape[1]))])
     res = batched_search(db, jnp.asarray(queries))
+    res_walk_distance = np.asarray(res.distance)
     d = _brute(X, ok, queries)
     got = np.asarray(res.index)
     best = d.min(1)
@@ -86,6 +87,26 @@ def test_search_equals_numpy_brute_force(db, batched_search):
     R = rng.standard_normal(X.shape)
     res = batched_search(eqx_replace(db, R), jnp.asarray(queries))
     np.testing.assert_array_equal(np.asarray(res.index), _brute(R, ok, queries).argmin(1), err_msg="index, random")
+    # vmap equals a loop of single searches
+    for k in (0, 9, 45):
+        one = matching.search(db, jnp.asarray(queries[k]), chunk=64)
+        assert int(one.index) == int(got[k]), f"query {k}"
+        np.testing.assert_allclose(float(one.distance), float(res_walk_distance[k]), rtol=1e-12)
+
+
+def test_search_float32(walk, db):
+    skel, motion = walk
+    db32 = matching.build_database([motion], skel, mirror=True, dtype=jnp.float32)
+    assert db32.features.dtype == jnp.float32
+    X = np.asarray(db.features)
+    ok = np.asarray(db.searchable)
+    rng = np.random.default_rng(1)
+    queries = X[rng.choice(np.nonzero(ok)[0], 16)] + 0.3 * rng.standard_normal((16, X.shape[1]))
+    res = jax.vmap(matching.search, in_axes=(None, 0))(db32, jnp.asarray(queries, jnp.float32))
+    d = _brute(X, ok, queries)
+    got = np.asarray(res.index)
+    # at the minimum to float32's round-off
+    np.testing.assert_allclose(d[np.arange(16), got], d.min(1), rtol=1e-4, atol=1e-4, err_msg="float32 distance")
     # a row of the database finds itself (searchable) at distance ~0
     i = int(np.nonzero(ok)[0][7])
     one = matching.search(db, db.features[i])
@@ -237,6 +258,16 @@ def test_database_errors(walk, db):
         matching.control_input([0.0, 1.0, 1.0], np.ones((3, 2)))
     with pytest.raises(jaxanim.JaxanimError, match="query: expected shape"):
         matching.search(db, jnp.zeros(5))
+    with pytest.raises(jaxanim.JaxanimError, match="num_frames: expected a positive int"):
+        matching.motion_matching(db, _constant(1.0, 0.0), 0)
+    with pytest.raises(jaxanim.JaxanimError, match="inputs: expected a ControlInput"):
+        matching.motion_matching(db, {"velocity": [[0, 1, 0]]}, 10)
+    with pytest.raises(jaxanim.JaxanimError, match="start_position: expected shape"):
+        matching.motion_matching(db, _constant(1.0, 0.0), 10, start_position=[0.0, 1.0, 2.0])
+    with pytest.raises(jaxanim.JaxanimError, match="trajectory_times: expected increasing positive seconds"):
+        matching.FeatureOptions(trajectory_times=(1.0, 0.5))
+    with pytest.raises(jaxanim.JaxanimError, match="facing: key 1 is a zero vector"):
+        matching.control_input([0.0, 1.0], np.ones((2, 2)), [[0.0, 1.0], [0.0, 0.0]])
 
 
 # --- the controller ---------------------------------------------------------------------------------

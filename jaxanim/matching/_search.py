@@ -1,10 +1,11 @@
 """Exact nearest-neighbour search over a motion-matching database.
 
 The squared distance is expanded, ``|q - x|^2 = |q|^2 - 2 q.x + |x|^2``, so that a batch of queries
-(``jax.vmap`` over agents) against the database is one matrix product per chunk of rows. The rows are
-taken in chunks (a ``lax.scan``), which bounds the memory at ``agents x chunk`` distances; a running
-minimum keeps the lowest index on ties. Rows that are not searchable carry ``|x|^2 = +inf`` and are
-never returned.
+(``jax.vmap`` over agents) against the database is one matrix product per chunk of rows (the rows
+``[x, |x|^2]`` against ``[-2 q, 1]``). The rows are taken in chunks of 512 (a ``lax.scan``), which
+bounds the memory at ``agents x chunk`` distances and keeps them in cache; a running minimum keeps
+the lowest index on ties. Rows that are not searchable carry ``|x|^2 = +inf`` and are never
+returned.
 
 The expansion loses about ``eps * (|q|^2 + |x|^2)`` of absolute accuracy to cancellation, and a
 batched product sums in another order than a single one. So rows within ``8 eps (2 |q|^2 + |d| + 1)``
@@ -25,7 +26,7 @@ from ._database import MatchingDatabase
 
 __all__ = ["SearchResult", "search"]
 
-DEFAULT_CHUNK = 1024
+DEFAULT_CHUNK = 512
 
 
 class SearchResult(eqx.Module):
@@ -53,30 +54,33 @@ def _search(features, squared_norms, query, chunk: int):
     q = query.astype(dtype)
     qq = jnp.dot(q, q)
     rtol = _tie(dtype)
+    # one product gives |x|^2 - 2 q.x: rows [x, |x|^2] against [-2 q, 1] (no pass to add |x|^2)
+    Xa = jnp.concatenate([features, squared_norms[:, None]], axis=1)
+    qa = jnp.concatenate([-2.0 * q, jnp.ones((1,), dtype)])
 
     def tol(m):
         return rtol * (2.0 * qq + jnp.abs(m) + 1.0)
 
     if N <= chunk:
-        d = squared_norms - 2.0 * (features @ q)
+        d = Xa @ qa
         i, m = _first_near_min(d, tol(jnp.min(d)))
         return i, jnp.maximum(m + qq, 0.0)
     n = -(-N // chunk)
-    pad = n * chunk - N
-    X = jnp.concatenate([features, jnp.zeros((pad, D), dtype)]).reshape(n, chunk, D)
-    S = jnp.concatenate([squared_norms, jnp.full((pad,), jnp.inf, dtype)]).reshape(n, chunk)
+    pad = jnp.zeros((n * chunk - N, D + 1), dtype).at[:, D].set(jnp.inf)  # padding rows: |x|^2 = inf
+    X = jnp.concatenate([Xa, pad]).reshape(n, chunk, D + 1)
 
     def body(carry, xs):
         best_d, best_i = carry
-        Xc, Sc, k = xs
-        d = Sc - 2.0 * (Xc @ q)
+        Xc, k = xs
+        d = Xc @ qa
         i, m = _first_near_min(d, tol(jnp.min(d)))
         # a later chunk must be better beyond round-off (the first finite one always is)
-        better = jnp.where(jnp.isinf(best_d), m < best_d, m < best_d - tol(jnp.where(jnp.isinf(best_d), 0.0, best_d)))
+        inf = jnp.isinf(best_d)
+        better = jnp.where(inf, m < best_d, m < best_d - tol(jnp.where(inf, 0.0, best_d)))
         return (jnp.where(better, m, best_d), jnp.where(better, k * chunk + i, best_i)), None
 
     init = (jnp.asarray(jnp.inf, dtype), jnp.asarray(0, jnp.int32))
-    (best_d, best_i), _ = lax.scan(body, init, (X, S, jnp.arange(n, dtype=jnp.int32)))
+    (best_d, best_i), _ = lax.scan(body, init, (X, jnp.arange(n, dtype=jnp.int32)))
     return best_i, jnp.maximum(best_d + qq, 0.0)
 
 
