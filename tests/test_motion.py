@@ -55,9 +55,11 @@ def test_resample_at_vmap_equals_loop():
     ms = [_clip(skel, seed=s) for s in range(3)]
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *ms)
     frames = jnp.asarray([0.0, 0.5, 2.25, 6.0])
-    out = jax.vmap(jaxanim.resample_at, in_axes=(0, None))(stacked, frames)
+    # jitted, the vmap and the single clip (eager, each op would compile on its own)
+    out = jax.jit(jax.vmap(jaxanim.resample_at, in_axes=(0, None)))(stacked, frames)
+    one_clip = jax.jit(jaxanim.resample_at)
     for i, m in enumerate(ms):
-        one = jaxanim.resample_at(m, frames)
+        one = one_clip(m, frames)
         assert_close("rotations", out.rotations[i], one.rotations, atol=1e-15)
 
 
@@ -111,7 +113,7 @@ def test_retarget_preserves_bone_orientations_small():
     dst = _a_pose(src, ("arm",), -0.7)
     m = _clip(src)
     out = jaxanim.retarget(m, src, dst)
-    fk = jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0))
+    fk = batched_fk()  # jitted (an eager vmap compiles op by op)
     a, b = fk(src, m.rotations, m.translations), fk(dst, out.rotations, out.translations)
     assert_close("bone directions", _bone_directions(dst, b), _bone_directions(src, a), atol=1e-9)
     # and back again gives the original clip (up to quaternion sign)
@@ -149,6 +151,6 @@ def test_retarget_vmap_equals_loop():
     M = jaxanim.rest_alignment(src, dst)
     ms = [_clip(src, seed=s) for s in range(2)]
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *ms)
-    out = jax.vmap(lambda m: jaxanim.retarget(m, src, dst, alignment=M))(stacked)
+    out = jax.jit(jax.vmap(lambda m: jaxanim.retarget(m, src, dst, alignment=M)))(stacked)  # eager, op by op
     for i, m in enumerate(ms):
         assert_close("rotations", out.rotations[i], jaxanim.retarget(m, src, dst).rotations, atol=1e-15)
