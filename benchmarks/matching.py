@@ -30,8 +30,8 @@ _CROWD = "jaxanim matching.motion_matching (vmap)"
 @dataclasses.dataclass(frozen=True)
 class MatchingSizes:
     """Sizes (``--quick`` and tests shrink them): the walk's speeds and frames per speed (the database holds
-    ``2 x speeds x frames`` rows with the mirror images), the search's agent batches, the crowd's agents and
-    seconds."""
+    ``2 x speeds x frames`` rows with the mirror images), the search's agent batches, the crowd's agents (0: no
+    crowd table) and seconds."""
 
     speeds: tuple[float, ...] = tuple(np.round(np.linspace(0.6, 1.6, 21), 3))
     frames_per_speed: int = 2400
@@ -206,7 +206,7 @@ def _crowd_table(config, sz: MatchingSizes) -> Table:
         fn = jax.jit(jax.vmap(lambda dbase, i: matching.motion_matching(dbase, i, frames), in_axes=(None, 0)))
         res, tm, comp = run.jax(fn, d, inp)
         root = np.asarray(res.motion.translations[:, :, 0], np.float64)
-        k = int(round(1.5 / float(db.frame_time)))
+        k = min(int(round(1.5 / float(db.frame_time))), frames - 1)
         moved = root[:, -1, [0, 2]] - root[:, -1 - k, [0, 2]]
         heading = np.arctan2(moved[:, 0], moved[:, 1])
         want = np.asarray(inputs.yaw[:, -1], np.float64)
@@ -228,4 +228,4 @@ def run_matching(config, sizes: MatchingSizes | None = None) -> list[Table]:
     """The ``matching`` benchmark (see the module docstring); ``sizes`` shrinks it for tests."""
     sz = sizes or (MatchingSizes(speeds=(0.8, 1.2), frames_per_speed=300, batches=(8,), crowd=8, crowd_seconds=2.0)
                    if config.quick else MatchingSizes())
-    return [_search_table(config, sz), _crowd_table(config, sz)]
+    return [_search_table(config, sz)] + ([_crowd_table(config, sz)] if sz.crowd > 0 else [])

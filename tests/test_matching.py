@@ -372,3 +372,22 @@ def test_match_command(tmp_path, capsys):
         code, _, stderr = _run(capsys, "match", *argv)
         assert code == 2 and message in stderr, stderr
         assert stderr.startswith("error: ") or "\nerror: " in stderr
+
+
+# --- the benchmark ------------------------------------------------------------------------------------
+
+
+def test_benchmark_reduced_run():
+    """``python -m benchmarks matching`` on a tiny database (one speed, 100 frames, + mirror) and 4 queries: the
+    rows, their accuracy and the peers' presence; timings are not checked. The crowd table (a batched
+    controller: test_vmap_over_agents_equals_a_loop runs one) is left out: its compile alone takes ~10 s."""
+    from benchmarks import REGISTRY, BenchConfig
+    from benchmarks.matching import MatchingSizes, run_matching
+
+    assert REGISTRY["matching"].load() is run_matching
+    config = BenchConfig.make_quick(dtypes=("float64",), verbose=False)
+    (search,) = run_matching(config, MatchingSizes(speeds=(1.0,), frames_per_speed=100, batches=(4,), crowd=0))
+    rows = {r.implementation: r for r in search.rows}
+    assert {"numpy brute force (BLAS)", "jaxanim matching.search (vmap)"} <= set(rows)
+    for name in ("numpy brute force (BLAS)", "jaxanim matching.search (vmap)"):
+        assert rows[name].measured and rows[name].success == 1.0, name
