@@ -102,8 +102,8 @@ def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
         motions.append(m)
     ui.progress(f"building the database: {len(clips)} clip(s){' and their mirror images' if args.mirror else ''}")
     t0 = time.perf_counter()
-    db = matching.build_database(motions, first.skeleton, mirror=args.mirror, skeletons=[c.skeleton for c in clips],
-                                 sources=[c.label for c in clips])
+    db = matching.build_database(motions, first.skeleton, mirror=args.mirror, mirror_check=False,
+                                 skeletons=[c.skeleton for c in clips], sources=[c.label for c in clips])
     build_seconds = time.perf_counter() - t0
     frames = int(round(args.seconds / dt)) + 1
     ui.progress(f"matching {_num((frames - 1) * dt)} s: {frames} frames, database of {db.num_rows} frames "
@@ -141,5 +141,7 @@ def add_match_parser(sub, common) -> None:
     p.add_argument("--input", "-i", required=True, metavar="IN.json", help="the velocity / facing input (see above)")
     p.add_argument("--seconds", "-s", type=float, required=True, metavar="S", help="duration to animate")
     p.add_argument("--out", "-o", required=True, metavar="OUT.bvh", help="output file")
-    p.add_argument("--mirror", action="store_true", help="add the clips' mirror images (left and right swapped)")
+    p.add_argument("--mirror", action="store_true",
+                   help="add the clips' mirror images (left and right swapped by joint name; a skeleton whose two "
+                        "sides differ a little, as CMU's, is mirrored anyway)")
     p.set_defaults(func=_cmd_match)

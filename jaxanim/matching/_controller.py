@@ -8,8 +8,11 @@ Per output frame (time ``t``):
    towards the desired facing (Holden's ``spring_character_update`` and ``simple_spring_damper``
    closed forms). Its future at the feature times (0.5, 1.0, 1.5 s) is predicted by the same closed
    forms, stepped twice per interval with the input sampled ahead;
-2. the **query** is the current database row's pose features with the predicted trajectory in the
-   character's facing frame in place of the row's own;
+2. the **query** is the current database row's pose features with the predicted trajectory in place
+   of the row's own: the simulated future positions relative to the simulated current one and the
+   simulated future facings, both turned into the character's facing frame (relative to the
+   simulation, not to the character, so a gap between the two does not read as a demand to move;
+   step 5 closes the gap);
 3. a **search** runs every ``search_period`` seconds (on frames that are multiples of it, the same
    for every agent), and at once when the desired velocity or
    facing moved away from those of the last search by more than ``velocity_change`` or

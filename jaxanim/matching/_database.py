@@ -109,6 +109,7 @@ def build_database(
     skeleton: Skeleton,
     *,
     mirror: bool = False,
+    mirror_check: bool = True,
     options: FeatureOptions = FeatureOptions(),
     skeletons: Sequence[Skeleton] | None = None,
     sources: Sequence[str] | None = None,
@@ -124,7 +125,11 @@ def build_database(
     Args:
         clips: one or more :class:`Motion` on ``skeleton``, all at the same frame time.
         skeleton: their skeleton.
-        mirror: also add every clip's mirror image (across ``x``, left and right swapped).
+        mirror: also add every clip's mirror image (across ``x``, left and right swapped:
+            :func:`jaxanim.skeleton.mirror`).
+        mirror_check: refuse a skeleton whose left and right offsets do not mirror each other (the
+            mirror images would not fit it); ``False`` mirrors anyway (the CMU skeletons are nearly
+            symmetric).
         options: :class:`FeatureOptions`.
         skeletons: optionally each clip's own skeleton (e.g. as read from its file): a clip whose
             skeleton differs from ``skeleton`` is an error naming it.
@@ -163,7 +168,7 @@ def build_database(
     dtype = dtype or clips[0].rotations.dtype
     layout = make_layout(skeleton, dt, options)
     if mirror:
-        clips = clips + [mirror_motion(m, skeleton) for m in clips]
+        clips = clips + [mirror_motion(m, skeleton, check=mirror_check) for m in clips]
     if all(m.num_frames <= max(layout.trajectory_frames) for m in clips):
         raise JaxanimError(f"clips: no frame can be searched: every clip is shorter than the trajectory window "
                            f"({max(layout.trajectory_times):g} s = {max(layout.trajectory_frames)} frames + 1)")
