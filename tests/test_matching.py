@@ -234,6 +234,21 @@ def test_feet_and_hands_detection_and_overrides(walk):
     assert [skel.names[j] for j in matching.detect_feet(skel)] == ["LeftFoot", "RightFoot"]
     assert [skel.names[j] for j in matching.detect_hands(skel)] == ["LeftHand", "RightHand"]
     assert matching.detect_feet(skel, ("LeftToeBase", "RightToeBase")) == (16, 20)
+    # the hand blocks, when asked for: the hands' positions in the facing frame
+    _, motion = walk
+    db_h = matching.build_database([motion], skel, options=matching.FeatureOptions(use_hands=True))
+    assert [b for b, _ in db_h.layout.blocks][4:6] == ["hand_positions", "hand_velocities"]
+    assert db_h.num_features == 44 and db_h.layout.hands == (8, 12)
+    f = 20
+    _, P = _np_fk(skel, np.asarray(motion.rotations[f]), np.asarray(motion.translations[f]))
+    qr = np.asarray(motion.rotations[f, 0])
+    yaw = 2 * np.arctan2(qr[2], qr[0])
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    Ry = np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]])
+    origin = P[0] * np.array([1, 0, 1])
+    want = np.concatenate([Ry.T @ (P[j] - origin) for j in (8, 12)])
+    raw = np.asarray(db_h.features[f]) / np.asarray(db_h.scale) + np.asarray(db_h.mean)
+    np.testing.assert_allclose(raw[db_h.layout.slice("hand_positions")], want, atol=_ATOL_FEATURES, err_msg="hands")
     with pytest.raises(jaxanim.JaxanimError, match="feet: unknown joint 'LeftPaw'; valid joints"):
         matching.detect_feet(skel, ("LeftPaw", "RightFoot"))
     with pytest.raises(jaxanim.JaxanimError, match="hands: unknown joint 'Claw'"):

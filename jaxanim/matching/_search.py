@@ -17,6 +17,7 @@ in a batch return the same row (a database built from a periodic clip has exact 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -84,6 +85,9 @@ def _search(features, squared_norms, query, chunk: int):
     return best_i, jnp.maximum(best_d + qq, 0.0)
 
 
+_search_jit = jax.jit(_search, static_argnums=3)
+
+
 def search(db: MatchingDatabase, query: Float[Array, " features"], *, chunk: int = DEFAULT_CHUNK) -> SearchResult:
     """The searchable row nearest to ``query`` (exact; ties go to the lowest index).
 
@@ -106,5 +110,5 @@ def search(db: MatchingDatabase, query: Float[Array, " features"], *, chunk: int
     check_shape("query", query, (db.num_features,), what=f"(features,) = ({db.num_features},)")
     if int(chunk) < 1:
         raise JaxanimError(f"chunk: expected a positive number of rows, got {chunk}")
-    i, d = _search(db.features, db.squared_norms, jnp.asarray(query), int(chunk))
+    i, d = _search_jit(db.features, db.squared_norms, jnp.asarray(query), int(chunk))
     return SearchResult(i, d)
