@@ -156,7 +156,7 @@ class ControllerOptions(eqx.Module):
     blend_halflife: float = eqx.field(default=0.1, converter=jnp.asarray)
     velocity_change: float = eqx.field(default=0.25, converter=jnp.asarray)
     facing_change: float = eqx.field(default=0.35, converter=jnp.asarray)
-    adjust_halflife: float = eqx.field(default=0.2, converter=jnp.asarray)
+    adjust_halflife: float = eqx.field(default=0.5, converter=jnp.asarray)
     adjust_turn_rate: float = eqx.field(default=math.pi / 2, converter=jnp.asarray)
     adjust_speed_ratio: float = eqx.field(default=0.5, converter=jnp.asarray)
     ignore_surrounding: float = eqx.field(default=0.2, converter=jnp.asarray)
