@@ -336,25 +336,28 @@ def test_riccati_gradients_match_finite_differences(continuous):
         sol = solve(A, B, Q, R, S=S)
         return jnp.sum(Wp * sol.P) + jnp.sum(Wk * sol.K)
 
-    grads = jax.grad(f, argnums=tuple(range(5)))(*args.values())
+    # each derivative jitted whole: one program apiece (eager, the AD of the jitted solve compiles its
+    # linearized and transposed parts separately, and the sums around it op by op)
+    grads = jax.jit(jax.grad(f, argnums=tuple(range(5))))(*args.values())
     h = 1e-6
     tangents = {k: rng.normal(size=np.shape(v)) for k, v in args.items()}
+    f_jit = jax.jit(f)
     for (name, x), g in zip(args.items(), grads):
         D = tangents[name]
-        plus = f(**{**args, name: x + h * D})
-        minus = f(**{**args, name: x - h * D})
+        plus = f_jit(**{**args, name: x + h * D})
+        minus = f_jit(**{**args, name: x - h * D})
         fd = (plus - minus) / (2 * h)
         assert_close(f"grad {name}", np.vdot(g, D), fd, rtol=_TOL_GRAD, atol=_TOL_GRAD)
     if continuous:
         return
     # forward mode agrees with reverse mode
-    _, jvp = jax.jvp(f, tuple(args.values()), tuple(tangents.values()))
+    _, jvp = jax.jit(lambda xs, ts: jax.jvp(f, xs, ts))(tuple(args.values()), tuple(tangents.values()))
     total = sum(np.vdot(g, tangents[k]) for k, g in zip(args, grads))
     assert_close("jvp", jvp, total, rtol=1e-10, atol=1e-10)
     # second order: a Hessian-vector product in A against finite differences of the gradient
-    grad_A = jax.grad(f)
+    grad_A = jax.jit(jax.grad(f))
     rest = tuple(args.values())[1:]
-    _, hvp = jax.jvp(lambda A: grad_A(A, *rest), (A,), (tangents["A"],))
+    _, hvp = jax.jit(lambda A, dA: jax.jvp(lambda A: jax.grad(f)(A, *rest), (A,), (dA,)))(A, tangents["A"])
     h2 = 1e-5
     fd2 = (grad_A(A + h2 * tangents["A"], *rest) - grad_A(A - h2 * tangents["A"], *rest)) / (2 * h2)
     assert_close("hvp A", hvp, fd2, rtol=1e-6, atol=1e-6 * np.max(np.abs(fd2)))
