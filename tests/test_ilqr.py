@@ -357,7 +357,9 @@ def test_cost_not_convex_in_u_is_regularised(name):
         xT, costs = jax.lax.scan(step, x0, (us.reshape(T, 1), jnp.arange(T)))
         return jnp.sum(costs) + _nc_terminal(xT, None)
 
-    # A local minimum of the single-shooting cost: zero gradient, positive-definite Hessian.
-    np.testing.assert_allclose(total(sol.us.ravel()), sol.cost, rtol=1e-12)
-    assert float(jnp.max(jnp.abs(jax.grad(total)(sol.us.ravel())))) < 1e-4
-    assert float(jnp.min(jnp.linalg.eigvalsh(jax.hessian(total)(sol.us.ravel())))) > 0
+    # A local minimum of the single-shooting cost: zero gradient, positive-definite Hessian (each
+    # jitted: eager, the derivatives of the scan compile op by op).
+    us = sol.us.ravel()
+    np.testing.assert_allclose(jax.jit(total)(us), sol.cost, rtol=1e-12)
+    assert float(np.max(np.abs(np.asarray(jax.jit(jax.grad(total))(us))))) < 1e-4
+    assert float(np.min(np.asarray(jax.jit(lambda u: jnp.linalg.eigvalsh(jax.hessian(total)(u)))(us)))) > 0
