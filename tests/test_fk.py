@@ -73,8 +73,8 @@ def test_fk_two_link_analytic():
 def test_quaternion_and_matrix_inputs_agree():
     skel = small_skeleton()
     q, t = random_pose(skel, 0)
-    a = jaxanim.forward_kinematics(skel, q, t)
-    b = jaxanim.forward_kinematics(skel, rot.quat_to_matrix(q), t)
+    a = jitted_fk(skel, q, t)  # jitted (eager FK compiles each op)
+    b = jitted_fk(skel, rot.quat_to_matrix(q), t)
     for f in ("rotations", "positions", "end_site_positions"):
         assert_close(f, getattr(a, f), getattr(b, f), atol=1e-14)
 
@@ -198,8 +198,10 @@ def test_fk_and_center_of_mass_against_numpy():
     skel = small_skeleton()
     q, t = random_pose(skel, 5)
     masses = jnp.arange(1.0, 7.0)
-    com = jaxanim.center_of_mass(skel, q, t, masses)
-    out = jaxanim.forward_kinematics(skel, q, t)
+    # jitted (eager, each op would compile on its own); the skeleton is a constant (center_of_mass
+    # reads its offsets on the host)
+    com = jax.jit(lambda q, t, m: jaxanim.center_of_mass(skel, q, t, m))(q, t, masses)
+    out = jitted_fk(skel, q, t)
     R, P, P_end = _numpy_fk(skel, q, t)
     assert_close("rotations", out.rotations, R, atol=1e-14)
     assert_close("positions", out.positions, P, atol=1e-14)
@@ -212,5 +214,6 @@ def test_fk_and_center_of_mass_against_numpy():
     c_world = P + np.einsum("jab,jb->ja", R, c_local)
     m = np.arange(1.0, 7.0)
     assert_close("com", com, (m[:, None] * c_world).sum(0) / m.sum(), atol=1e-14)
-    batched = jax.vmap(jaxanim.center_of_mass, in_axes=(None, 0, 0, None))(skel, q[None], t[None], masses)
+    batched = jax.jit(jax.vmap(lambda q, t, m: jaxanim.center_of_mass(skel, q, t, m), in_axes=(0, 0, None)))(
+        q[None], t[None], masses)
     assert_close("vmap com", batched[0], com, atol=1e-15)
