@@ -111,6 +111,7 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         f"time {_duration(seconds)} (compile included): {samples} samples, {samples / seconds:.0f} samples/s, "
         f"{samples * (options.window + options.lookahead) * options.steps_per_frame / seconds:.0f} character-steps/s "
         f"(each sample: {options.window} frames and {options.lookahead} of look-ahead)",
+        _torque_line(char, result.torque, options.torque_limit),
     ]
     if args.push:
         lines += _push_report(args.push, char, reference, result, frames, frame_time, ui)
@@ -145,6 +146,16 @@ def _push_report(newtons: float, char, reference, result, frames: int, frame_tim
     return [f"feedback gains: {frames - 1} frames, {_duration(seconds)} (compile included)",
             f"push {newtons:g} N forward on the torso ({char.model.bodies.names[torso]}) for {_PUSH_SECONDS} s at "
             f"{mid:.2f} s: open-loop controls {word[fell[False]]}, with the feedback gains {word[fell[True]]}"]
+
+
+def _torque_line(char, torque, limit) -> str:
+    """The largest joint torque of the run, against its joint's bound."""
+    torque = np.asarray(torque)
+    names = char.skeleton.names
+    child = np.asarray(char.body_joint)[np.asarray(char.model.joints.child)]
+    j = int(np.argmax(torque.max(axis=0) / (1.0 if limit is None else np.asarray(limit))))
+    bound = "no torque limit" if limit is None else f"limit {np.broadcast_to(np.asarray(limit), torque.shape[1:])[j]:.0f} N m"
+    return f"peak joint torque {torque[:, j].max():.0f} N m at {names[child[j]]} ({bound}; joint_torque_limits)"
 
 
 def _plot_tracking(path, result, reference, frame_time: float, char, title: str) -> None:

@@ -10,6 +10,7 @@ from ._samcon import (
     TrackingResult as TrackingResult,
     TrackingStatus as TrackingStatus,
     joint_sigma as joint_sigma,
+    joint_torque_limits as joint_torque_limits,
     replay as replay,
     samcon as samcon,
     state_difference as state_difference,

@@ -70,7 +70,7 @@ def _linearize(character, reference, options, corrections, traj):
 
         def frame(dx, u):
             s = problem.simulate_frame(state_retract(x0, dx), f + 1,
-                                       rot.quat_multiply(dq, rot.rotvec_to_quat(u.reshape(-1, 3))))
+                                       rot.quat_multiply(dq, rot.rotvec_to_quat(u.reshape(-1, 3))))[0]
             return state_difference(s, x1)
 
         return jax.jacfwd(frame, argnums=(0, 1))(jnp.zeros(n, dtype), jnp.zeros(m, dtype))
