@@ -342,17 +342,22 @@ def transition(a: Motion, b: Motion, frame_a: int, frame_b: int, window: int, *,
         JaxanimError: a frame out of range, a window longer than what remains of either clip or
             negative, clips with different joint counts or frame times.
     """
+    _check_pair(a, b)
+    frame_a = _static_int("frame_a", frame_a, 0, a.num_frames,
+                          f"a has {a.num_frames} frames and the switch may be at its end")
+    frame_b = _static_int("frame_b", frame_b, 0, b.num_frames - 1, f"b has {b.num_frames} frames")
+    window = _check_window(window, a.num_frames - frame_a, b.num_frames - frame_b, frame_a, frame_b)
+    return _transition(a, b, frame_a, frame_b, window, _up_tuple(up))
+
+
+def _check_pair(a: Motion, b: Motion) -> None:
+    """Two clips to join: Motions of at least one frame, the same joints and frame time."""
     _check_motion("a", a)
     _check_motion("b", b)
     _check_same_joints("a", a, "b", b)
     _check_frame_times("a", a, "b", b)
     _check_frames("a", a, 1)
     _check_frames("b", b, 1)
-    frame_a = _static_int("frame_a", frame_a, 0, a.num_frames,
-                          f"a has {a.num_frames} frames and the switch may be at its end")
-    frame_b = _static_int("frame_b", frame_b, 0, b.num_frames - 1, f"b has {b.num_frames} frames")
-    window = _check_window(window, a.num_frames - frame_a, b.num_frames - frame_b, frame_a, frame_b)
-    return _transition(a, b, frame_a, frame_b, window, _up_tuple(up))
 
 
 def concatenate(a: Motion, b: Motion, *, window: int = 0, up=(0.0, 1.0, 0.0)) -> Motion:
@@ -374,12 +379,7 @@ def concatenate(a: Motion, b: Motion, *, window: int = 0, up=(0.0, 1.0, 0.0)) ->
     Raises:
         JaxanimError: as :func:`transition`.
     """
-    _check_motion("a", a)
-    _check_motion("b", b)
-    _check_same_joints("a", a, "b", b)
-    _check_frame_times("a", a, "b", b)
-    _check_frames("a", a, 1)
-    _check_frames("b", b, 1)
+    _check_pair(a, b)
     if not _is_int(window) or int(window) < 0:
         raise JaxanimError(f"window: expected a number of frames >= 0 (a Python int), got {window!r}")
     if int(window) > b.num_frames:
