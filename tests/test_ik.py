@@ -268,11 +268,17 @@ def test_nan_target_gives_no_nan_pose():
     assert bool(jnp.all(jnp.isfinite(sol.rotations))) and bool(jnp.all(jnp.isfinite(sol.translations)))
 
 
-def test_cli_ik_writes_edited_bvh(tmp_path):
+def test_cli_ik_writes_edited_bvh(tmp_path, monkeypatch):
     """`jaxanim ik FILE --targets TARGETS.json --out OUT.bvh` on a short clip of the shipped walk."""
     import json
+    import os
 
     from jaxanim.cli import main
+
+    from .conftest import _CACHE_ENV
+
+    # the command's compilation cache is the run's (conftest), not ~/.cache/jaxanim: a clean start, as on CI
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ[_CACHE_ENV])
 
     skel, m = jaxanim.read_bvh(jaxanim.default_clip_path())
     short = jaxanim.Motion(m.rotations[:8], m.translations[:8], m.frame_time)
