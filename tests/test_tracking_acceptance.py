@@ -1,6 +1,9 @@
 """Issue 13's acceptance runs of ``jaxanim track``, as a user types them (minutes each, so they are
 left out of the default run; ``python -m pytest -m acceptance`` runs them).
 
+Both run within the torque limits of ``tracking.joint_torque_limits`` (the report's peak torque is
+checked against its bound).
+
 - The shipped walk, 4 s with looping, 256 samples, a 100 N forward push on the torso at mid-clip:
   no fall (the root stays above 0.7 x the clip's lowest root height), mean joint error at most
   0.15 rad, mean horizontal root error at most 0.2 m; with the feedback gains the push does not
@@ -31,6 +34,8 @@ def _track(capsys, *argv):
     out = captured.out
     joint = float(re.search(r"mean joint error ([0-9.]+) rad", out).group(1))
     root = float(re.search(r"mean horizontal root error ([0-9.]+) m", out).group(1))
+    peak, bound = re.search(r"peak joint torque ([0-9]+) N m at \w+ \(limit ([0-9]+) N m", out).groups()
+    assert int(peak) <= int(bound), out  # within the torque limits (tracking.joint_torque_limits)
     return code, out, captured.err, joint, root
 
 
