@@ -120,13 +120,22 @@ def test_torque_limits_follow_the_joints_roles_and_the_mass(problem):
 
 
 @pytest.fixture(scope="module")
-def controlled(problem, result):
+def linearization(problem, result):
+    """``tracking.linearize`` of this file's search, computed once (it costs far more than the gains):
+    checked against finite differences below and reused by the gains of ``controlled``."""
+    char, ref, _ = problem
+    return tracking.linearize(char, ref, result)
+
+
+@pytest.fixture(scope="module")
+def controlled(problem, result, linearization):
     """The gains of this file's small search (2 s, 32 samples), with the LQR weights that hold its
     push: the defaults (w_position 3, w_control 300) were picked on the acceptance run's 4 s, 256
     sample trajectory, and on this one they do not hold it; the gains' reach depends on the
     trajectory (the README says so). Same program as the defaults' (the weights are arrays)."""
     char, ref, _ = problem
-    return tracking.feedback(char, ref, result, tracking.FeedbackOptions(w_position=100.0, w_control=1000.0))
+    weights = tracking.FeedbackOptions(w_position=100.0, w_control=1000.0)
+    return tracking.feedback(char, ref, result, weights, linearization=linearization)
 
 
 def _frame(char, ref, state, f, correction, u):
@@ -138,14 +147,13 @@ def _frame(char, ref, state, f, correction, u):
     spd = physics.StablePD(jaxanim.rotations.quat_multiply(ref.targets[f], dq), options.kp, options.kd,
                            options.torque_limit)
     h = ref.frame_time / options.steps_per_frame
-    for _ in range(options.steps_per_frame):
-        state = physics.step(char.model, state, h, spd=spd)
-    return state
+    # a loop, not unrolled: one step is compiled (four unrolled bounded steps took 33 s to compile)
+    return jax.lax.fori_loop(0, options.steps_per_frame, lambda _, s: physics.step(char.model, s, h, spd=spd), state)
 
 
-def test_linearization_equals_finite_differences_of_physics_step(problem, result):
+def test_linearization_equals_finite_differences_of_physics_step(problem, result, linearization):
     char, ref, _ = problem
-    A, B = tracking.linearize(char, ref, result)
+    A, B = linearization
     nb, nj = char.model.bodies.num_bodies, char.model.joints.num_joints
     assert A.shape == (FRAMES - 1, 12 * nb, 12 * nb) and B.shape == (FRAMES - 1, 12 * nb, 3 * nj)
     f = 31  # frame 31 -> 32, in the 11th window: a foot on the ground
@@ -206,6 +214,8 @@ def test_bad_input(problem, result):
         tracking.samcon(char, short, jax.random.PRNGKey(0))
     with pytest.raises(jaxanim.JaxanimError, match="feedback=True: the result has no feedback gains"):
         tracking.replay(char, ref, result, feedback=True)
+    with pytest.raises(jaxanim.JaxanimError, match=r"linearization: expected A \[60, 228, 228\] and B \[60, 228, 54\]"):
+        tracking.feedback(char, ref, result, linearization=(jnp.zeros((60, 228, 228)), jnp.zeros((60, 228, 3))))
     with pytest.raises(jaxanim.JaxanimError, match="options: expected a FeedbackOptions"):
         tracking.feedback(char, ref, result, options={"w_control": 1.0})
     with pytest.raises(jaxanim.JaxanimError, match="at least 2 frames"):

@@ -107,14 +107,30 @@ def _gains(A, B, options: FeedbackOptions) -> Feedback:
     return Feedback(gains=sol.Ks, limit=options.limit.astype(dtype), result=sol.result)
 
 
+def _check_linearization(linearization, result: TrackingResult) -> None:
+    frames, bodies = result.trajectory.position.shape[:2]
+    joints = result.corrections.shape[1]
+    n, m = 12 * bodies, 3 * joints
+    expected = ((frames - 1, n, n), (frames - 1, n, m))
+    if not (isinstance(linearization, tuple) and len(linearization) == 2):
+        raise JaxanimError(f"linearization: expected the (A, B) of linearize, got {type(linearization).__name__}")
+    got = tuple(tuple(jnp.shape(a)) for a in linearization)
+    if got != expected:
+        raise JaxanimError(f"linearization: expected A {list(expected[0])} and B {list(expected[1])} "
+                           f"(linearize of this result), got {list(got[0])} and {list(got[1])}")
+
+
 def feedback(character: Character, reference: TrackingReference, result: TrackingResult,
-             options: FeedbackOptions | None = None) -> TrackingResult:
+             options: FeedbackOptions | None = None, *, linearization=None) -> TrackingResult:
     """Time-varying LQR feedback gains around a tracked trajectory (module docstring).
 
     Args:
         character, reference: as given to :func:`~jaxanim.tracking.samcon`.
         result: its :class:`~jaxanim.tracking.TrackingResult`.
         options: :class:`FeedbackOptions` (default ``FeedbackOptions()``).
+        linearization: ``(A, B)`` from :func:`linearize` of the same result, to reuse: the
+            linearization costs far more than the gains, so a sweep over LQR weights linearizes
+            once. Default: computed here.
 
     Returns:
         ``result`` with ``feedback`` set (:class:`~jaxanim.tracking.Feedback`);
@@ -124,5 +140,9 @@ def feedback(character: Character, reference: TrackingReference, result: Trackin
     options = FeedbackOptions() if options is None else options
     if not isinstance(options, FeedbackOptions):
         raise JaxanimError(f"options: expected a FeedbackOptions, got {type(options).__name__}")
-    law = _gains(*_linearize_jit(character, reference, tracking_options, result.corrections, result.trajectory), options)
+    if linearization is None:
+        linearization = _linearize_jit(character, reference, tracking_options, result.corrections, result.trajectory)
+    else:
+        _check_linearization(linearization, result)
+    law = _gains(*linearization, options)
     return eqx.tree_at(lambda r: r.feedback, result, law, is_leaf=lambda x: x is None)
