@@ -114,10 +114,13 @@ def run_benchmarks(names: Sequence[str], config: BenchConfig, command: str = "py
         config.log(f"== {n}: {REGISTRY[n].description}")
         load0, start = _load(), time.perf_counter()
         new = REGISTRY[n].load()(config)
+        load1, cores = _load(), os.cpu_count()
+        busy = any(x != "n/a" and float(x) > cores for x in (load0, load1))
         run = (f"*Measured by `{command}` (benchmark `{n}`, {'quick' if config.quick else 'full'} mode), finished "
                f"{utc_now()}, in {time.perf_counter() - start:.0f} s; 1-minute load average {load0} at its start and "
-               f"{_load()} at its end on {os.cpu_count()} logical cores (above the core count, other processes "
-               "shared the CPU and inflated every time).*")
+               f"{load1} at its end on {cores} logical cores"
+               + (" (above the core count: other processes shared the CPU and inflated every time)" if busy else "")
+               + ".*")
         for t in new:
             t.run = run
         tables.extend(new)
