@@ -28,7 +28,7 @@ from jaxtyping import Array, Float
 import solvers
 
 from .. import rotations as rot
-from .._errors import JaxanimError
+from .._errors import JaxanimError, check_shape
 from ..character._build import Character
 from ._samcon import (
     Feedback, TrackingReference, TrackingResult, _check, _problem, state_difference, state_retract,
@@ -109,15 +109,12 @@ def _gains(A, B, options: FeedbackOptions) -> Feedback:
 
 def _check_linearization(linearization, result: TrackingResult) -> None:
     frames, bodies = result.trajectory.position.shape[:2]
-    joints = result.corrections.shape[1]
-    n, m = 12 * bodies, 3 * joints
-    expected = ((frames - 1, n, n), (frames - 1, n, m))
+    n, m = 12 * bodies, 3 * result.corrections.shape[1]
     if not (isinstance(linearization, tuple) and len(linearization) == 2):
         raise JaxanimError(f"linearization: expected the (A, B) of linearize, got {type(linearization).__name__}")
-    got = tuple(tuple(jnp.shape(a)) for a in linearization)
-    if got != expected:
-        raise JaxanimError(f"linearization: expected A {list(expected[0])} and B {list(expected[1])} "
-                           f"(linearize of this result), got {list(got[0])} and {list(got[1])}")
+    for name, x, cols, dims in (("A", linearization[0], n, "12 bodies"), ("B", linearization[1], m, "3 joints")):
+        check_shape(f"linearization {name}", x, (frames - 1, n, cols),
+                    what=f"(frames - 1, 12 bodies, {dims}) = ({frames - 1}, {n}, {cols})")
 
 
 def feedback(character: Character, reference: TrackingReference, result: TrackingResult,
