@@ -24,7 +24,7 @@ import dataclasses
 import pathlib
 import re
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 import jax
@@ -102,9 +102,13 @@ def kind_of(ins: Instruction | None) -> str:
     return ins.opcode
 
 
-def profile_events(compiled: Callable, args: tuple, calls: int = PROFILED_CALLS) -> dict[str, tuple[float, int]]:
+def profile_events(compiled: Callable, args: tuple, calls: int = PROFILED_CALLS,
+                   names: Collection[str] | None = None) -> dict[str, tuple[float, int]]:
     """``{instruction name: (seconds, count)}`` per call of ``compiled(*args)`` from a ``jax.profiler`` trace of
-    XLA:CPU's threads (runtime bookkeeping events excluded)."""
+    XLA:CPU's threads (runtime bookkeeping events excluded). With ``names`` (the program's instructions,
+    :func:`hlo_instructions`) only their events are kept: XLA:CPU's classic emitters
+    (``--xla_cpu_use_fusion_emitters=false``) also trace library work nested inside an instruction's
+    own event (Eigen's ``Transpose``), which would count that time twice."""
     from jax._src.lib import _profile_data  # noqa: PLC0415 - the reader of the profiler's own trace files
 
     jax.block_until_ready(compiled(*args))
@@ -123,6 +127,8 @@ def profile_events(compiled: Callable, args: tuple, calls: int = PROFILED_CALLS)
                 continue
             for ev in line.events:
                 if "::" in ev.name or " " in ev.name:  # ThunkExecutor::Execute and other bookkeeping
+                    continue
+                if names is not None and ev.name not in names:
                     continue
                 total[ev.name] += ev.duration_ns * 1e-9
                 count[ev.name] += 1
@@ -368,8 +374,8 @@ def run_profile(config) -> list[Table]:
             cs = compile_time(jax.jit(fn), *args)
             jax.block_until_ready(cs.compiled(*args))
             tm = sample_call(config, cs.compiled, args, 0.0)
-            p = summarize(profile_events(cs.compiled, args), hlo_instructions(cs.compiled.as_text()),
-                          cs.compiled.as_text())
+            instructions = hlo_instructions(cs.compiled.as_text())
+            p = summarize(profile_events(cs.compiled, args, names=instructions), instructions, cs.compiled.as_text())
         except Exception as exc:  # noqa: BLE001 - one kernel's failure is a row, not the end of the report
             table.rows.append(Row(k.name, k.dtype, batch, skipped=f"failed: {type(exc).__name__}: "
                                   f"{(str(exc).splitlines() or [''])[0][:200]}"))

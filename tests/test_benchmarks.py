@@ -258,7 +258,9 @@ def test_profile_attributes_time_to_the_compiled_instructions():
     A = jnp.eye(64) * 3.0 + 0.01
     compiled = jax.jit(lambda a, b: jnp.linalg.solve(a, jnp.sin(b))).lower(A, A).compile()
     instructions = profile.hlo_instructions(compiled.as_text())
-    events = profile.profile_events(compiled, (A, A), calls=2)
+    unfiltered = profile.profile_events(compiled, (A, A), calls=2)
+    assert set(unfiltered) & set(instructions), unfiltered  # the trace's events name the program's instructions
+    events = profile.profile_events(compiled, (A, A), calls=2, names=instructions)
     assert events and set(events) <= set(instructions), set(events) - set(instructions)
     p = profile.summarize(events, instructions, compiled.as_text())
     kinds = dict(p.by_kind)
