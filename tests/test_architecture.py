@@ -163,3 +163,17 @@ def test_01_modules_are_the_same_objects_either_way():
     assert jaxanim.rigid.make_bodies is make_bodies is jaxanim.physics.make_bodies
     assert jaxanim.balance.balance_controller is jaxanim.character.balance_controller
     assert importlib.import_module("jaxanim.fk").forward_kinematics is jaxanim.forward_kinematics
+
+
+def test_importing_the_packages_starts_no_jax_backend():
+    """Importing jaxanim computes nothing: a default argument or field that builds arrays at import time
+    would start XLA's backend, after which the user's ``XLA_FLAGS`` and ``jax.config`` platform
+    settings no longer apply (a ``FeatureOptions()`` default did)."""
+    import subprocess
+    import sys
+
+    code = ("import jaxanim, jaxanim.app, solvers; from jaxanim.app import _cli; "
+            "from jax._src import xla_bridge as xb; print(sorted(xb._backends))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout

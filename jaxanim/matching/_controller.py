@@ -431,7 +431,7 @@ def motion_matching(
     *,
     start_position: Float[Array, "2"] | None = None,
     start_yaw: Float[Array, ""] | None = None,
-    options: ControllerOptions = ControllerOptions(),
+    options: ControllerOptions | None = None,
 ) -> MatchResult:
     """Animate one agent by motion matching for ``num_frames`` frames (see the module docstring).
 
@@ -445,7 +445,7 @@ def motion_matching(
             pose at the start.
         start_position: ``[2]`` start ``(x, z)`` on the ground (default the origin).
         start_yaw: start facing yaw (default the input's at time 0).
-        options: :class:`ControllerOptions`.
+        options: :class:`ControllerOptions` (default ``ControllerOptions()``).
 
     Returns:
         :class:`MatchResult` with the :class:`Motion` (write it with :func:`jaxanim.write_bvh` on
@@ -464,4 +464,5 @@ def motion_matching(
     start_yaw = jnp.asarray(jnp.nan if start_yaw is None else start_yaw, dtype)
     check_shape("start_yaw", start_yaw, (), what="() (a scalar)")
     inputs = jax.tree.map(lambda x: x.astype(dtype), inputs)
+    options = ControllerOptions() if options is None else options
     return _run_jit(db, inputs, int(num_frames), start_position, start_yaw, options)

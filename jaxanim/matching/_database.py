@@ -110,7 +110,7 @@ def build_database(
     *,
     mirror: bool = False,
     mirror_check: bool = True,
-    options: FeatureOptions = FeatureOptions(),
+    options: FeatureOptions | None = None,
     skeletons: Sequence[Skeleton] | None = None,
     sources: Sequence[str] | None = None,
     dtype=None,
@@ -130,7 +130,7 @@ def build_database(
         mirror_check: refuse a skeleton whose left and right offsets do not mirror each other (the
             mirror images would not fit it); ``False`` mirrors anyway (the CMU skeletons are nearly
             symmetric).
-        options: :class:`FeatureOptions`.
+        options: :class:`FeatureOptions` (default ``FeatureOptions()``).
         skeletons: optionally each clip's own skeleton (e.g. as read from its file): a clip whose
             skeleton differs from ``skeleton`` is an error naming it.
         sources: a label per clip for messages (default ``"clip <i>"``).
@@ -144,6 +144,7 @@ def build_database(
             time (naming the clip); an unknown foot or hand joint; no searchable frame (every clip
             shorter than the trajectory window).
     """
+    options = FeatureOptions() if options is None else options
     clips = list(clips)
     if not clips:
         raise JaxanimError("clips: expected at least one clip")

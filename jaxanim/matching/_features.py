@@ -76,7 +76,7 @@ class FeatureOptions(eqx.Module):
             per second.
     """
 
-    weights: FeatureWeights = FeatureWeights()
+    weights: FeatureWeights = eqx.field(default_factory=FeatureWeights)
     trajectory_times: tuple[float, ...] = eqx.field(default=(0.5, 1.0, 1.5), static=True)
     feet: tuple[str, str] | None = eqx.field(default=None, static=True)
     hands: tuple[str, str] | None = eqx.field(default=None, static=True)
