@@ -274,3 +274,27 @@ def test_benchmark_reduced_run(problem):
     assert rows[("MuJoCo C rollout.rollout", 32)].chars_per_call == 32 * steps
     assert rows[("MuJoCo C mj_step (Python loop)", 32)].chars_per_call == 2 * steps  # the quick loop cap
     assert "samples/s" in own.note and "- Target: search compile ≤ 30 s: worst jaxanim tracking.samcon" in text
+
+
+def test_demo_tour(problem, result, tmp_path, capsys):
+    """``jaxanim demo``: every step runs and writes its picture. It is here, not in test_cli.py, because
+    its tracking step (2 s at 32 samples) is this file's search: the compiled program of the ``result``
+    fixture serves it, and the simulation is deterministic, so it reproduces that search's errors."""
+    pytest.importorskip("matplotlib", reason="matplotlib is not installed (the plot extra)")
+    out_dir = tmp_path / "new" / "demo"
+    code, out, err = _run(capsys, "demo", "--out-dir", out_dir)
+    assert code == 0, err
+    assert f"[{len(cli.DEMO_STEPS)}/{len(cli.DEMO_STEPS)}]" in err
+    for png in ("demo_pose.png", "demo_ik.png", "demo_track.png"):
+        assert (out_dir / png).read_bytes()[:4] == b"\x89PNG", png
+        assert f"wrote {out_dir / png}" in out
+    with np.load(out_dir / "demo_fk.npz") as z:
+        assert {"positions", "rotations"} <= set(z) and z["positions"].shape == (120, 21, 3)
+    for text in ("parse", "compile", "µs per frame", "demo_fk.npz", "120/120 frames meet the target",
+                 "no root force): stood"):
+        assert text in out, text
+    # the tracked clip: the search of the `result` fixture, replayed as BVH on the same skeleton
+    assert f"mean joint error {float(np.asarray(result.joint_error[1:]).mean()):.3f} rad" in out
+    skel, motion = jaxanim.read_bvh(out_dir / "demo_track.bvh")
+    assert motion.num_frames == FRAMES and skel.num_joints == 21
+

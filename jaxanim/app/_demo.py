@@ -10,9 +10,11 @@ import time
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from ._common import _UI, _Clip, _clip_fk, _FKRun, _fk_arrays, _load, _ms, _num, _plot, _save_npz
+from ..skeleton._bvh import write_bvh
+from ._common import _UI, _Clip, _clip_fk, _duration, _FKRun, _fk_arrays, _load, _ms, _num, _plot, _save_npz
 
 _DEMO_TIMING_REPEATS = 20
 
@@ -26,6 +28,8 @@ class DemoState:
     dtype: type  # np.float64, or np.float32 with --float32
     clip: _Clip | None = None
     fk: _FKRun | None = None
+    ik_motion: object | None = None  # the IK-edited Motion
+    track: object | None = None  # the TrackRun of the tracking step
     rows: list[tuple[str, str]] = dataclasses.field(default_factory=list)  # (step, summary) lines
 
 
@@ -65,12 +69,114 @@ def _demo_plot(s: DemoState) -> None:
     s.rows.append(("plot", f"wrote {out} (frame {frame})"))
 
 
+def _has_matplotlib(s: DemoState, step: str) -> bool:
+    try:
+        import matplotlib  # noqa: F401  (optional: the plot extra)
+    except ImportError:
+        s.rows.append((step, "picture skipped: matplotlib is not installed (pip install 'jaxanim[plot]')"))
+        return False
+    return True
+
+
+def _side_by_side(path: pathlib.Path, skeleton, poses: list[tuple[str, object]], title: str) -> None:
+    """One stick figure per ``(caption, FKResult)``, side by side on shared limits, as a PNG."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ._plot import plot_pose
+
+    fig = Figure(figsize=(4.5 * len(poses), 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    for i, (caption, fk) in enumerate(poses, start=1):
+        plot_pose(skeleton, fk, ax=fig.add_subplot(1, len(poses), i, projection="3d"), title=caption)
+    fig.suptitle(title)
+    fig.savefig(path, dpi=90, format="png")
+
+
+#: The IK edit of the demo: the right hand raised this far (metres) above where the clip puts it, on every frame.
+_DEMO_IK_RAISE = 0.3
+
+
+def _demo_ik(s: DemoState) -> None:
+    """An IK edit of the whole clip in one batched call: the right hand raised, the only its arm moving."""
+    from ..ik import Target, solve_ik_clip
+    from ..kinematics._fk import forward_kinematics
+
+    skel, motion = s.clip.skeleton, s.clip.motion
+    hand = "RightHand_End" if "RightHand_End" in skel.end_site_names else skel.end_site_names[0]
+    # only the arm that carries the hand moves (from the shoulder down); the rest stays as in the clip
+    arm, j = set(), skel.end_site_parents[skel.end_site_names.index(hand)]
+    for _ in range(4):
+        arm.add(skel.names[j])
+        j = skel.parents[j]
+    frozen = tuple(n for n in skel.names if n not in arm)
+    fk = jax.jit(jax.vmap(forward_kinematics, in_axes=(None, 0, 0)))
+    sites = fk(skel, motion.rotations, motion.translations).end_site_positions
+    # the shipped clip is in metres, with y up
+    goal = sites[:, skel.end_site_names.index(hand)] + jnp.asarray([[0.0, _DEMO_IK_RAISE, 0.0]], sites.dtype)
+    target = Target(hand, position=goal)
+    t0 = time.perf_counter()
+    edited, sol = jax.block_until_ready(solve_ik_clip(skel, motion, target, frozen=frozen, root_translation="fixed"))
+    cold = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    jax.block_until_ready(solve_ik_clip(skel, motion, target, frozen=frozen, root_translation="fixed"))
+    warm = time.perf_counter() - t0
+    f = motion.num_frames
+    ok = int(np.asarray(sol.success).sum())
+    s.rows.append(("ik", f"raise {hand} by {_DEMO_IK_RAISE:g} m on all {f} frames, only its arm moving "
+                         f"(solve_ik_clip, Levenberg-Marquardt): {ok}/{f} frames meet the target, max error "
+                         f"{float(np.asarray(sol.position_errors).max()):.2g} (file units)"))
+    s.rows.append(("", f"{_duration(cold)} with compilation, {_ms(warm)} warm = {warm / f * 1e3:.2f} ms per frame"))
+    s.ik_motion = edited
+    if _has_matplotlib(s, "ik"):
+        out = s.out_dir / "demo_ik.png"
+        k = f // 2
+        poses = [(caption, forward_kinematics(skel, m.rotations[k], m.translations[k]))
+                 for caption, m in (("the clip", motion), (f"{hand} raised {_DEMO_IK_RAISE:g} m", edited))]
+        _side_by_side(out, skel, poses, f"IK edit, frame {k}")
+        s.rows.append(("", f"wrote {out}"))
+
+
+#: The tracking run of the demo: the shape that ``jaxanim track --seconds 2 --samples 32`` compiles.
+_DEMO_TRACK_SECONDS, _DEMO_TRACK_SAMPLES = 2.0, 32
+
+
+def _demo_track(s: DemoState) -> None:
+    """Tracking without root force: the sampling-based search on joint torques only."""
+    from ._track import _plot_tracking, track_clip
+
+    if s.dtype != np.float64:
+        s.rows.append(("track", "skipped: the physics runs in float64 (drop --float32)"))
+        return
+    run = track_clip(s.clip, s.clip.motion, _DEMO_TRACK_SECONDS, _DEMO_TRACK_SAMPLES, 0, "complementarity", s.ui)
+    r = run.result
+    samples = run.windows * run.options.samples
+    status = "fell" if bool(r.fell) else "stood"
+    s.rows.append(("track", f"{_DEMO_TRACK_SECONDS:g} s of the clip on joint torques only (tracking.samcon, "
+                            f"{run.options.samples} samples per window, no root force): {status}, mean joint error "
+                            f"{float(np.asarray(r.joint_error[1:]).mean()):.3f} rad, root "
+                            f"{float(np.asarray(r.root_error[1:]).mean()):.3f} m"))
+    s.rows.append(("", f"{samples} samples simulated in {_duration(run.seconds)}, compilation included (more "
+                       "samples track closer: jaxanim track --samples 256, as in the README)"))
+    s.track = run
+    bvh = s.out_dir / "demo_track.bvh"
+    write_bvh(bvh, s.clip.skeleton, run.simulated_motion())
+    s.rows.append(("", f"wrote {bvh}"))
+    if _has_matplotlib(s, "track"):
+        out = s.out_dir / "demo_track.png"
+        _plot_tracking(out, r, run.reference, run.frame_time, run.char,
+                       f"{s.clip.path.name}: samcon, {run.options.samples} samples, no root force")
+        s.rows.append(("", f"wrote {out}"))
+
+
 #: The demo, in order: ``(name, step)``; a step reads and extends the :class:`DemoState`.
 DEMO_STEPS: list[tuple[str, Callable[[DemoState], None]]] = [
     ("load the shipped clip", _demo_load),
     ("forward kinematics of every frame", _demo_fk),
     ("save the FK arrays", _demo_save_fk),
     ("plot a stick figure", _demo_plot),
+    ("edit the clip by inverse kinematics", _demo_ik),
+    ("track the clip without root force", _demo_track),
 ]
 
 
@@ -87,6 +193,6 @@ def _cmd_demo(args: argparse.Namespace, ui: _UI) -> int:
     dtype = np.asarray(state.clip.motion.rotations).dtype
     lines = [f"jaxanim demo ({dtype}, {dev.platform}: {dev.device_kind})"]
     lines += [f"  {name:<5} {text}" for name, text in state.rows]
-    lines.append(f"  total {_ms(total)}")
+    lines.append(f"  total {_duration(total)}")
     ui.result("\n".join(lines))
     return 0

@@ -4,9 +4,11 @@ by sampling-based control (:func:`jaxanim.tracking.samcon`), and write the simul
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -15,7 +17,7 @@ import numpy as np
 from .._errors import JaxanimError
 from ..skeleton._bvh import write_bvh
 from ..skeleton._skeleton import Motion
-from ._common import _UI, _duration, _load, _num
+from ._common import _UI, _Clip, _duration, _load, _num
 from ._simulate import _check_writable, _looped_motion
 
 _TRACK_CONTACTS = ("complementarity", "penalty")
@@ -41,9 +43,6 @@ def _progress(ui: _UI):
 
 
 def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
-    from .. import character, tracking
-    from ..physics import make_ground
-
     if args.float32:
         raise JaxanimError("track: --float32 is not supported (the physics runs in float64)")
     if not (math.isfinite(args.seconds) and args.seconds > 0):
@@ -68,38 +67,13 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         from ._plot import _import_matplotlib
 
         _import_matplotlib(pyplot=False)
-    ground = make_ground(args.contact, max_points=8 if args.contact == "complementarity" else None, iterations=10,
-                         dtype=jnp.float64)
-    char, _ = character.build_character(clip.skeleton, ground=ground)
-    options = tracking.tracking_options(char, float(motion.frame_time), args.samples)
-    if motion.num_frames < options.window + 1:
-        raise JaxanimError(f"{clip.label} has {motion.num_frames} frames from frame {args.from_frame}: too short for "
-                           f"one control window of {options.window} frames (need at least {options.window + 1})")
-    frame_time = float(motion.frame_time)
-    frames = int(round(args.seconds / frame_time)) + 1
-    windows = (frames - 1) // options.window
-    if windows < 1:
-        raise JaxanimError(f"--seconds {args.seconds:g} is shorter than one control window "
-                           f"({options.window} frames = {_num(options.window * frame_time)} s)")
-    frames = windows * options.window + 1
-    if frames > motion.num_frames:
-        ui.progress(f"looping the clip: {frames} frames from {motion.num_frames}")
-    reference_motion = _looped_motion(motion, frames)
-    t0 = time.perf_counter()
-    reference = tracking.tracking_reference(char, reference_motion)
-    ui.progress(f"tracking {_num((frames - 1) * frame_time)} s: {windows} windows of {options.window} frames, "
-                f"{options.samples} samples each, seed {args.seed}, {args.contact} contact, no root force")
-    result = tracking.samcon(char, reference, jax.random.PRNGKey(args.seed), options, progress=_progress(ui))
-    jax.block_until_ready(result)
-    seconds = time.perf_counter() - t0
+    run = track_clip(clip, motion, args.seconds, args.samples, args.seed, args.contact, ui,
+                     label=f"{clip.label} from frame {args.from_frame}")
+    char, options, reference, result = run.char, run.options, run.reference, run.result
+    frames, windows, seconds, frame_time = run.frames, run.windows, run.seconds, run.frame_time
     status = "fell" if bool(result.fell) else "successful"
-    # the simulated poses, in the clip's frame (the reference was lifted onto the ground)
-    traj = result.trajectory
-    lift = np.asarray(reference.lift) / char.unit
-    q, t = jax.jit(jax.vmap(lambda s, r: character.character_pose(char, s, reference=r)))(traj, reference_motion.rotations)
-    t = t.at[:, 0, 1].add(-lift)
     ui.progress(f"writing {out}")
-    write_bvh(out, clip.skeleton, Motion(q, t, motion.frame_time))
+    write_bvh(out, clip.skeleton, run.simulated_motion())
     joint_error = np.asarray(result.joint_error[1:])
     root_error = np.asarray(result.root_error[1:])  # meters
     samples = windows * options.samples
@@ -124,6 +98,66 @@ def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
         ui.error("the character fell (its root went below 0.7 x the clip's lowest root height)")
         return 1
     return 0
+
+
+@dataclasses.dataclass
+class TrackRun:
+    """One search of :func:`track_clip`: the character, options, reference, result and sizes."""
+
+    char: Any
+    options: Any
+    reference: Any
+    motion: Motion  # the (looped) clip that was tracked
+    result: Any
+    frames: int
+    windows: int
+    frame_time: float
+    seconds: float  # the search's wall time, compilation included
+
+    def simulated_motion(self) -> Motion:
+        """The simulated poses as a clip on the skeleton, in the clip's frame (the reference was lifted
+        onto the ground; the lift is taken off again)."""
+        from .. import character
+
+        char = self.char
+        pose = jax.jit(jax.vmap(lambda s, r: character.character_pose(char, s, reference=r)))
+        q, t = pose(self.result.trajectory, self.motion.rotations)
+        t = t.at[:, 0, 1].add(-np.asarray(self.reference.lift) / char.unit)
+        return Motion(q, t, self.motion.frame_time)
+
+
+def track_clip(clip: _Clip, motion: Motion, seconds: float, samples: int, seed: int, contact: str, ui: _UI, *,
+               label: str | None = None) -> TrackRun:
+    """Build the physics character of ``clip`` and run :func:`jaxanim.tracking.samcon` on ``seconds`` of
+    ``motion`` (looped when longer), with progress on ``ui``: what ``jaxanim track`` and the demo run."""
+    from .. import character, tracking
+    from ..physics import make_ground
+
+    ground = make_ground(contact, max_points=8 if contact == "complementarity" else None, iterations=10,
+                         dtype=jnp.float64)
+    char, _ = character.build_character(clip.skeleton, ground=ground)
+    options = tracking.tracking_options(char, float(motion.frame_time), samples)
+    if motion.num_frames < options.window + 1:
+        raise JaxanimError(f"{label or clip.label} has {motion.num_frames} frames: too short for one control window "
+                           f"of {options.window} frames (need at least {options.window + 1})")
+    frame_time = float(motion.frame_time)
+    frames = int(round(seconds / frame_time)) + 1
+    windows = (frames - 1) // options.window
+    if windows < 1:
+        raise JaxanimError(f"--seconds {seconds:g} is shorter than one control window "
+                           f"({options.window} frames = {_num(options.window * frame_time)} s)")
+    frames = windows * options.window + 1
+    if frames > motion.num_frames:
+        ui.progress(f"looping the clip: {frames} frames from {motion.num_frames}")
+    reference_motion = _looped_motion(motion, frames)
+    t0 = time.perf_counter()
+    reference = tracking.tracking_reference(char, reference_motion)
+    ui.progress(f"tracking {_num((frames - 1) * frame_time)} s: {windows} windows of {options.window} frames, "
+                f"{options.samples} samples each, seed {seed}, {contact} contact, no root force")
+    result = tracking.samcon(char, reference, jax.random.PRNGKey(seed), options, progress=_progress(ui))
+    jax.block_until_ready(result)
+    return TrackRun(char, options, reference, reference_motion, result, frames, windows, frame_time,
+                    time.perf_counter() - t0)
 
 
 def _push_report(newtons: float, char, reference, result, frames: int, frame_time: float, ui: _UI) -> list[str]:
