@@ -98,6 +98,8 @@ REGISTRY: dict[str, BenchmarkSpec] = {s.name: s for s in (
                   "SAMCON tracking of the shipped walk: samples/s vs MuJoCo C rollouts of the batch, time to track 4 s"),
     BenchmarkSpec("matching", "benchmarks.matching:run_matching",
                   "motion matching: search of 1024 agents x 100k frames vs cKDTree and numpy; a 1024-agent crowd"),
+    BenchmarkSpec("skinning", "benchmarks.skinning:run_skinning",
+                  "LBS and DQS skinning, ~10k vertices x 1k frames of the shipped walk: jaxanim vs vectorised numpy"),
     BenchmarkSpec("profile", "benchmarks.profile:run_profile",
                   "where the time goes: jax.profiler traces of the kernels behind the speed targets"),
     BenchmarkSpec("scaling", "benchmarks.scaling:run_scaling",

@@ -1,0 +1,202 @@
+"""Skinning benchmark (``python -m benchmarks skinning``): linear blend (LBS) and dual-quaternion (DQS) skinning
+of a ~10k-vertex capsule skin of the shipped walk over ~1k frames, ``jaxanim.skinning`` (one compiled ``vmap``
+over the frames, as ``skin_motion`` runs it) against vectorised NumPy implementations in the same run, as
+vertices x frames per second."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxanim import default_clip_path, read_bvh, skinning
+from jaxanim.app._simulate import _looped_motion
+from jaxanim.skinning._mesh import bone_segments
+from jaxanim.skinning._skin import _frames_args, _frames_kernel
+
+from .report import Row, Table, Target, sel
+from .timing import Runner
+
+__all__ = ["SkinningSizes", "numpy_dqs", "numpy_lbs", "run_skinning"]
+
+_JAX = {m: f"jaxanim skin_motion ({m.upper()})" for m in ("lbs", "dqs")}
+_NUMPY = {m: f"numpy, vectorised ({m.upper()})" for m in ("lbs", "dqs")}
+_CHUNK = 32  # frames per NumPy step (bounds its temporaries to ~100 MB at 10k vertices)
+
+
+@dataclasses.dataclass(frozen=True)
+class SkinningSizes:
+    """Sizes (``--quick`` and tests shrink them): the mesh's target vertex count and the frames."""
+
+    vertices: int = 10_000
+    frames: int = 1000
+
+
+# ------------------------------------------------------------------------------------------------
+# NumPy peers: FK in quaternions, skinning vectorised over vertices and a chunk of frames
+# ------------------------------------------------------------------------------------------------
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def _qmat(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1
+                    ).reshape(q.shape[:-1] + (3, 3))
+
+
+def _numpy_transforms(parents, offsets, rotations, translations):
+    """Skinning transforms from the rest bind pose: global quaternions ``[F, J, 4]`` (the rest pose's are the
+    identity, so they are the skinning rotations) and translations ``t_j = p_j - R_j p_bind_j`` ``[F, J, 3]``."""
+    J = rotations.shape[1]
+    q = np.empty_like(rotations)
+    p = np.empty_like(translations)
+    pb = np.empty((J, 3), offsets.dtype)
+    q[:, 0], p[:, 0], pb[0] = rotations[:, 0], translations[:, 0], offsets[0]
+    for j in range(1, J):
+        a = parents[j]
+        q[:, j] = _qmul(q[:, a], rotations[:, j])
+        p[:, j] = p[:, a] + np.einsum("fab,fb->fa", _qmat(q[:, a]), translations[:, j])
+        pb[j] = pb[a] + offsets[j]
+    return q, p - np.einsum("fjab,jb->fja", _qmat(q), pb)
+
+
+def numpy_lbs(parents, offsets, rotations, translations, vertices, joints, weights) -> np.ndarray:
+    """LBS of every frame, ``[F, V, 3]``: the dense ``[V, J]`` weight matrix times the frames' 3x4 transforms
+    (one BLAS product per chunk of frames), then each vertex's blended matrix applied."""
+    q, t = _numpy_transforms(parents, offsets, rotations, translations)
+    F, J = q.shape[:2]
+    V = vertices.shape[0]
+    W = np.zeros((V, J), vertices.dtype)
+    np.add.at(W, (np.arange(V)[:, None], joints), weights)
+    M = np.concatenate([_qmat(q), t[..., None]], axis=3)  # [F, J, 3, 4]
+    out = np.empty((F, V, 3), vertices.dtype)
+    for lo in range(0, F, _CHUNK):
+        m = M[lo:lo + _CHUNK]
+        A = (W @ m.transpose(1, 0, 2, 3).reshape(J, -1)).reshape(V, m.shape[0], 3, 4)
+        out[lo:lo + _CHUNK] = np.einsum("vfab,vb->fva", A[..., :3], vertices) + A[..., 3].transpose(1, 0, 2)
+    return out
+
+
+def numpy_dqs(parents, offsets, rotations, translations, vertices, joints, weights) -> np.ndarray:
+    """DQS of every frame, ``[F, V, 3]``: unit dual quaternions ``(r, 1/2 (0, t) r)``, flipped onto the largest
+    weight's hemisphere, blended, normalised and applied (``R(r) v + 2 vec(d r*)``), per chunk of frames."""
+    r, t = _numpy_transforms(parents, offsets, rotations, translations)
+    d = 0.5 * _qmul(np.concatenate([np.zeros_like(t[..., :1]), t], axis=-1), r)
+    F = r.shape[0]
+    V = vertices.shape[0]
+    pivot = joints[np.arange(V), np.argmax(weights, axis=1)]
+    out = np.empty((F, V, 3), vertices.dtype)
+    for lo in range(0, F, _CHUNK):
+        rk, dk = r[lo:lo + _CHUNK][:, joints], d[lo:lo + _CHUNK][:, joints]  # [c, V, K, 4]
+        rp = r[lo:lo + _CHUNK][:, pivot]  # [c, V, 4]
+        ws = np.where(np.einsum("cvkq,cvq->cvk", rk, rp) < 0, -weights, weights)
+        br, bd = np.einsum("cvk,cvkq->cvq", ws, rk), np.einsum("cvk,cvkq->cvq", ws, dk)
+        n = np.sqrt(np.einsum("cvq,cvq->cv", br, br))[..., None]
+        br, bd = br / n, bd / n
+        conj = br * np.array([1, -1, -1, -1], br.dtype)
+        out[lo:lo + _CHUNK] = (np.einsum("cvab,vb->cva", _qmat(br), vertices) + 2.0 * _qmul(bd, conj)[..., 1:])
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# The table
+# ------------------------------------------------------------------------------------------------
+
+
+def _mesh_for(skel, target: int) -> skinning.Mesh:
+    """A capsule skin with about ``target`` vertices (16 sides and 3 cap rings from 2000, fewer below; rings along the
+    bones to fit)."""
+    segments = len(bone_segments(skel)[2])
+    sides, cap = (16, 3) if target >= 2000 else (8, 2) if target >= 1500 else (4, 1)
+    rings = max(1, round((target / segments - 2) / sides - (2 * cap - 1)))
+    return skinning.capsule_mesh(skel, sides=sides, rings=rings, cap_rings=cap)
+
+
+def _description(method: str, V: int, F: int, T: int, K: int) -> str:
+    common = (f"The shipped walk (21 joints) looped to {F} frames, skinned with a procedural capsule mesh "
+              f"(`skinning.capsule_mesh`, {V} vertices, {T} triangles) and the distance-to-bone heuristic weights "
+              f"(K = {K}). One timed call skins every frame (the batch column counts the frames); **µs / char is per "
+              "vertex-frame** and the note gives "
+              "vertices x frames per second. jaxanim: the kernel of `skinning.skin_motion`, one compiled `jax.vmap` "
+              "of `skin` over the frames (FK, skinning transforms, blend; compile apart; the weights' Python checks, "
+              "done once per call of `skin_motion`, are not timed). NumPy: FK in quaternions vectorised over the "
+              "frames, then ")
+    if method == "lbs":
+        how = ("the dense [V, J] weight matrix times the frames' 3x4 transforms (one BLAS product per "
+               f"{_CHUNK} frames) and each vertex's blended matrix applied. jaxanim's LBS is one matrix product "
+               "[V, 4J] x [4J, 3] per frame (the weights times the homogeneous vertex, against the transforms), "
+               "one GEMM over all frames under `vmap`.")
+    else:
+        how = ("the K dual quaternions gathered per vertex, flipped, blended, normalised and applied, vectorised "
+               f"over the vertices and {_CHUNK} frames at a time. jaxanim's DQS blend is one matrix product [V, P] x "
+               "[P, 8] per frame over the P (largest-weight joint, joint) pairs that occur in the weights (one GEMM "
+               "over all frames under `vmap`), then the same normalisation and sandwich.")
+    return common + how + (" Accuracy: the largest distance from the float64 NumPy result (the reference row).")
+
+
+def run_skinning(config, sizes: SkinningSizes | None = None) -> list[Table]:
+    """The ``skinning`` benchmark (see the module docstring): a table for LBS and one for DQS; ``sizes`` shrinks
+    it for tests."""
+    sz = sizes or (SkinningSizes(vertices=500, frames=8) if config.quick else SkinningSizes())
+    skel, walk = read_bvh(default_clip_path())[:2]
+    motion = _looped_motion(walk, sz.frames)
+    mesh = _mesh_for(skel, sz.vertices)
+    w = skinning.heuristic_weights(skel, mesh)
+    V, F, K = mesh.num_vertices, motion.num_frames, w.k
+    np_args = (skel.parents, np.asarray(skel.offsets, np.float64), np.asarray(motion.rotations, np.float64),
+               np.asarray(motion.translations, np.float64), np.asarray(mesh.vertices, np.float64),
+               np.asarray(w.joints), np.asarray(w.weights, np.float64))
+    tables = []
+    for method in ("lbs", "dqs"):
+        table = Table(
+            f"skinning-{method}", f"Skinning ({method.upper()}): {V} vertices x {F} frames of the shipped walk",
+            accuracy_label="max abs err (m)", description=_description(method, V, F, mesh.num_faces, K),
+            targets=[Target(f"jaxanim {method.upper()} at least as fast as NumPy (float64)",
+                            sel(_JAX[method], "float64"), 1.0, versus=sel(_NUMPY[method], "float64"))])
+        _fill(config, table, method, skel, motion, mesh, w, np_args)
+        tables.append(table)
+    return tables
+
+
+def _fill(config, table: Table, method: str, skel, motion, mesh, w, np_args) -> None:
+    run = Runner(config, table)
+    V, F = mesh.num_vertices, motion.num_frames
+    numpy_fn = numpy_lbs if method == "lbs" else numpy_dqs
+    ref: list[np.ndarray] = []
+
+    def reference() -> np.ndarray:
+        if not ref:
+            ref.append(numpy_fn(*np_args))
+        return ref[0]
+
+    def numpy_row() -> Row:
+        out, tm = run.python(numpy_fn, *np_args)
+        ref[:] = [out]
+        return run.row(_NUMPY[method], "float64", F, tm, V * F, accuracy="reference",
+                       note=f"{V * F / tm.median / 1e6:.1f} M vertex-frames/s")
+
+    def jax_row(dtype: str) -> Row:
+        def cast(tree):
+            return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+
+        fn = jax.jit(functools.partial(_frames_kernel, method=method))
+        args = _frames_args(cast(skel), cast(motion), cast(mesh), cast(w), method)
+        out, tm, comp = run.jax(fn, *args)
+        err = float(np.max(np.linalg.norm(np.asarray(out, np.float64) - reference(), axis=-1)))
+        return run.row(_JAX[method], dtype, F, tm, V * F, comp, err,
+                       note=f"{V * F / tm.median / 1e6:.1f} M vertex-frames/s")
+
+    run.add(_NUMPY[method], "float64", F, numpy_row, peer=True)
+    for dt in config.dtypes:
+        run.add(_JAX[method], dt, F, lambda d=dt: jax_row(d))
