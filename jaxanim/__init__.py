@@ -5,7 +5,10 @@ Every algorithm is a pure function that solves one instance; batch with ``jax.vm
 The subpackages, from the bottom up (each imports only those above it in this list):
 ``rotations`` -> ``skeleton`` -> ``kinematics`` -> ``ik``; ``rotations`` -> ``physics`` ->
 ``character`` (which also uses ``skeleton`` and ``kinematics``); ``skeleton`` and ``kinematics`` ->
-``matching`` (motion matching: features, database, search, controller); ``app`` (CLI, plots) on top.
+``matching`` (motion matching: features, database, search, controller); ``rotations``, ``skeleton``
+and ``kinematics`` -> ``skinning`` (LBS / DQS, skin weights, capsule mesh, OBJ); ``rotations`` and
+``skeleton`` -> ``splines`` (curves, arc length, slerp / squad, keyframes); ``app`` (CLI, plots,
+render, viewer) on top.
 """
 
 from ._version import __version__ as __version__
@@ -21,6 +24,8 @@ from . import (
     physics as physics,
     rotations as rotations,
     skeleton as skeleton,
+    skinning as skinning,
+    splines as splines,
 )
 from ._errors import BVHParseError as BVHParseError, JaxanimError as JaxanimError
 from .kinematics import (

@@ -113,6 +113,9 @@ def test_layers_run_one_way():
         "jaxanim.physics": {"jaxanim._errors", "jaxanim._types", "jaxanim._tree", "jaxanim.rotations"},
         "jaxanim.matching": {"jaxanim._errors", "jaxanim._types", "jaxanim._tree", "jaxanim.rotations",
                              "jaxanim.skeleton", "jaxanim.kinematics"},
+        "jaxanim.skinning": {"jaxanim._errors", "jaxanim._types", "jaxanim.rotations", "jaxanim.skeleton",
+                             "jaxanim.kinematics"},
+        "jaxanim.splines": {"jaxanim._errors", "jaxanim._types", "jaxanim.rotations", "jaxanim.skeleton"},
     }
     for unit, allowed in below.items():
         extra = {v for v in graph[unit] if v.startswith("jaxanim")} - allowed

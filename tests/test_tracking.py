@@ -228,7 +228,17 @@ def _run(capsys, *argv):
     return code, captured.out, captured.err
 
 
-def test_track_command(tmp_path, capsys):
+def test_track_command(problem, result, linearization, tmp_path, capsys, monkeypatch):
+    # The command's search is the `result` fixture's (the same clip, options and seed; the search is
+    # deterministic), so the linearization its --push gains need is the `linearization` fixture's
+    # (27 s to recompute, checked above): served from it, after checking that the trajectory is that one.
+    from jaxanim.tracking import _feedback
+
+    def linearize(char, ref, options, corrections, trajectory):
+        np.testing.assert_array_equal(np.asarray(corrections), np.asarray(result.corrections))
+        return linearization
+
+    monkeypatch.setattr(_feedback, "_linearize_jit", linearize)
     out = tmp_path / "walk.track.bvh"
     code, stdout, stderr = _run(capsys, "track", "--seconds", 2, "--samples", 32, "--push", 100, "--out", out)
     assert code == 0, stderr  # the search of the `result` fixture (seed 0), which stands
@@ -288,10 +298,17 @@ def test_demo_tour(problem, result, tmp_path, capsys):
     for png in ("demo_pose.png", "demo_ik.png", "demo_track.png"):
         assert (out_dir / png).read_bytes()[:4] == b"\x89PNG", png
         assert f"wrote {out_dir / png}" in out
+    for gif, frames in (("demo_skin.gif", 30), ("demo_compare.gif", FRAMES)):
+        from PIL import Image
+
+        with Image.open(out_dir / gif) as im:
+            assert im.format == "GIF" and im.n_frames == frames, gif
+        assert f"wrote {out_dir / gif}" in out
     with np.load(out_dir / "demo_fk.npz") as z:
         assert {"positions", "rotations"} <= set(z) and z["positions"].shape == (120, 21, 3)
     for text in ("parse", "compile", "µs per frame", "demo_fk.npz", "120/120 frames meet the target",
-                 "no root force): stood"):
+                 "no root force): stood", "LBS of all 120 frames", "DQS of all 120 frames",
+                 "the clip beside its simulation without root force, 61 frames"):
         assert text in out, text
     # the tracked clip: the search of the `result` fixture, replayed as BVH on the same skeleton
     assert f"mean joint error {float(np.asarray(result.joint_error[1:]).mean()):.3f} rad" in out

@@ -1,4 +1,5 @@
-"""The ``jaxanim`` command line: ``info``, ``fk``, ``plot``, ``ik``, ``simulate``, ``track`` and ``demo`` on BVH files.
+"""The ``jaxanim`` command line on BVH files: ``info``, ``fk``, ``plot``, ``ik``, ``simulate``, ``track``, ``blend``,
+``loop``, ``match``, ``skin``, ``render``, ``view`` and ``demo``.
 
 Every command takes an optional BVH file and uses the shipped default clip (a walk, see
 :mod:`jaxanim.default_clip`) without one. Computation is float64 unless ``--float32`` is given:
@@ -21,9 +22,11 @@ so); those states are written, as BVH on the same skeleton at the clip's frame t
 start pose as frame 0. A rollout that ends ``nonfinite`` or ``exploded`` still writes its frames
 (held at the last good state) and exits with status 1.
 
-``demo`` runs a list of steps (:data:`DEMO_STEPS`); later features append theirs to it.
+``demo`` runs a list of steps (:data:`DEMO_STEPS`), a tour of the suite; later features append theirs to it.
 
-The commands live beside this module: :mod:`._simulate` (``simulate``), :mod:`._demo` (``demo``),
+The commands live beside this module: :mod:`._simulate` (``simulate``), :mod:`._track` (``track``),
+:mod:`._motion` (``blend``, ``loop``), :mod:`._match` (``match``), :mod:`._skin` (``skin``),
+:mod:`._render` (``render``), :mod:`._view` (``view``), :mod:`._demo` (``demo``),
 :mod:`._common` (output, loading, batched FK); this module holds ``info``, ``fk``, ``ik``, ``plot``,
 the parser and :func:`main`, and re-exports the others' names, so ``jaxanim.cli`` (the 0.1 path)
 still offers them.
@@ -51,6 +54,9 @@ from . import _cache
 from ._track import add_track_parser
 from ._motion import add_motion_parsers
 from ._match import add_match_parser
+from ._render import add_render_parser
+from ._view import add_view_parser
+from ._skin import add_skin_parser
 from ._common import (  # the 0.1 module held these: ``jaxanim.cli`` still offers them
     _PROG as _PROG,
     _UI as _UI,
@@ -230,7 +236,11 @@ examples:
   jaxanim plot walk.bvh --frame 10 --out pose.png
   jaxanim simulate walk.bvh --seconds 5 --out sim.bvh --plot
                                        track the clip with stable PD (physics)
-  jaxanim demo --out-dir results       run the whole pipeline with timings"""
+  jaxanim track walk.bvh --seconds 4 --out trk.bvh
+                                       track the clip on joint torques only
+  jaxanim render walk.bvh --compare trk.bvh --out cmp.gif
+                                       the clip beside its simulation
+  jaxanim demo --out-dir results       a tour of the suite with timings"""
 
 
 def _add_global_flags(p: argparse.ArgumentParser, default) -> None:
@@ -322,13 +332,19 @@ def _build_parser() -> argparse.ArgumentParser:
     add_track_parser(sub, common, file_help)
     add_motion_parsers(sub, common, file_help)
     add_match_parser(sub, common)
+    add_render_parser(sub, common)
+    add_view_parser(sub, common)
+    add_skin_parser(sub, common)
 
-    p = sub.add_parser("demo", parents=[common], help="run the pipeline on the shipped clip, with timings",
-                       description="Load the shipped walk clip, run forward kinematics of all frames in one batched "
-                                   "call, write demo_fk.npz and demo_pose.png, and print a summary with timings "
-                                   "(parse, compile separate from run, µs per frame).")
+    p = sub.add_parser("demo", parents=[common], help="a tour of the suite on the shipped clip, with timings",
+                       description="A tour on the shipped walk clip, each step with its timings and a picture: "
+                                   "load; forward kinematics of all frames in one batched call (demo_fk.npz, "
+                                   "demo_pose.png); an IK edit of every frame (demo_ik.png); 2 s tracked without "
+                                   "root force (demo_track.bvh, demo_track.png); LBS and DQS skinning "
+                                   "(demo_skin.gif); the clip beside its simulation (demo_compare.gif). About a "
+                                   "minute on two cores, most of it compiling the tracking search.")
     p.add_argument("--out-dir", "-d", default="jaxanim_demo", metavar="DIR",
-                   help="where to write demo_fk.npz and demo_pose.png (created; default: ./jaxanim_demo)")
+                   help="where to write the demo's files (created; default: ./jaxanim_demo)")
     p.set_defaults(func=_cmd_demo)
     return parser
 

@@ -169,6 +169,53 @@ def _demo_track(s: DemoState) -> None:
         s.rows.append(("", f"wrote {out}"))
 
 
+def _demo_skin(s: DemoState) -> None:
+    """Skinning of every frame: the procedural capsule mesh, distance-to-bone weights, LBS and DQS."""
+    from ..skinning import capsule_mesh, heuristic_weights, skin_motion
+
+    skel, motion = s.clip.skeleton, s.clip.motion
+    t0 = time.perf_counter()
+    mesh = capsule_mesh(skel)
+    weights = heuristic_weights(skel, mesh)
+    setup = time.perf_counter() - t0
+    v, f = mesh.vertices.shape[0], motion.num_frames
+    s.rows.append(("skin", f"capsule mesh of {v} vertices, {mesh.faces.shape[0]} triangles, "
+                           f"{weights.joints.shape[1]} bones per vertex (distance-to-bone weights): {_duration(setup)}"))
+    for method in ("lbs", "dqs"):
+        t0 = time.perf_counter()
+        jax.block_until_ready(skin_motion(skel, motion, mesh, weights, method))
+        cold = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        jax.block_until_ready(skin_motion(skel, motion, mesh, weights, method))
+        warm = time.perf_counter() - t0
+        s.rows.append(("", f"{method.upper()} of all {f} frames: {_duration(cold)} with compilation, {_ms(warm)} warm "
+                           f"= {v * f / warm / 1e6:.1f} M vertex-frames/s"))
+    if _has_matplotlib(s, "skin"):
+        from ._render import render_clips
+
+        out = s.out_dir / "demo_skin.gif"
+        info = render_clips([s.clip], out, frames=(0, min(f, 30)), mesh=True)
+        s.rows.append(("", f"wrote {out} ({info.frames} frames, the skinned mesh over the skeleton)"))
+
+
+def _demo_render(s: DemoState) -> None:
+    """The clip beside its simulation (the tracking step's), as an animated GIF."""
+    if not _has_matplotlib(s, "render"):
+        return
+    from ._render import render_clips
+
+    clips = [s.clip]
+    if s.track is not None:
+        simulated = s.track.simulated_motion()
+        clips.append(_Clip(label="the simulation", path=s.out_dir / "demo_track.bvh", skeleton=s.clip.skeleton,
+                           motion=simulated, parse_seconds=0.0))
+    out = s.out_dir / "demo_compare.gif"
+    t0 = time.perf_counter()
+    info = render_clips(clips, out, frames=(0, clips[-1].motion.num_frames))
+    what = "the clip beside its simulation without root force" if len(clips) == 2 else "the clip"
+    s.rows.append(("render", f"wrote {out}: {what}, {info.frames} frames in {_duration(time.perf_counter() - t0)}"))
+
+
 #: The demo, in order: ``(name, step)``; a step reads and extends the :class:`DemoState`.
 DEMO_STEPS: list[tuple[str, Callable[[DemoState], None]]] = [
     ("load the shipped clip", _demo_load),
@@ -177,6 +224,8 @@ DEMO_STEPS: list[tuple[str, Callable[[DemoState], None]]] = [
     ("plot a stick figure", _demo_plot),
     ("edit the clip by inverse kinematics", _demo_ik),
     ("track the clip without root force", _demo_track),
+    ("skin the clip (LBS and DQS)", _demo_skin),
+    ("render the clip beside its simulation", _demo_render),
 ]
 
 
