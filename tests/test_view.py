@@ -101,9 +101,12 @@ def _screenshot(url: str, path, user_data_dir, budget_ms: int):
 
 
 def _magenta(img: np.ndarray) -> int:
-    """Pixels of the centre-line bone colour (R and B high, G low), whatever tone mapping does to it."""
+    """Pixels of the centre-line bone colour's hue (R and B well above G, and close to each other),
+    whatever tone mapping and the page's fade-in do to its brightness: on a loaded machine the
+    screenshot can catch the bones pale (a pale magenta, e.g. (240, 180, 240), drew 0 pixels under a
+    test for R, B > 150 and G < 100)."""
     r, g, b = img[..., 0], img[..., 1], img[..., 2]
-    return int(((r > 150) & (b > 150) & (g < 100) & (np.abs(r - b) < 80)).sum())
+    return int(((r - g > 40) & (b - g > 40) & (np.abs(r - b) < 60)).sum())
 
 
 @pytest.mark.skipif(shutil.which("chromium") is None,
