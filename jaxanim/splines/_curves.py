@@ -46,8 +46,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.lax.linalg import tridiagonal_solve
 
-from .._errors import JaxanimError, check_float, check_shape
+from .._errors import JaxanimError, check_shape
 from .._types import Array, ArrayLike, Float
+from ..rotations._base import _as_float_any
 
 _MAX_DERIVATIVE = 3
 
@@ -58,15 +59,8 @@ _MAX_DERIVATIVE = 3
 
 
 def _as_float_array(name: str, x) -> Array:
-    """``x`` as a floating jax array (integers become the default float)."""
-    try:
-        x = jnp.asarray(x)
-    except (TypeError, ValueError) as exc:
-        raise JaxanimError(f"{name}: expected a real floating-point array, got {type(x).__name__}") from exc
-    check_float(name, x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
+    """``x`` as a floating jax array (integers become the default float); the rotations' own check."""
+    return _as_float_any(name, x)
 
 
 def _check_knots(name: str, knots) -> Array:
