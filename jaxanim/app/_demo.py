@@ -110,8 +110,7 @@ def _demo_ik(s: DemoState) -> None:
         arm.add(skel.names[j])
         j = skel.parents[j]
     frozen = tuple(n for n in skel.names if n not in arm)
-    fk = jax.jit(jax.vmap(forward_kinematics, in_axes=(None, 0, 0)))
-    sites = fk(skel, motion.rotations, motion.translations).end_site_positions
+    sites = s.fk.result.end_site_positions  # the FK step's, of every frame
     # the shipped clip is in metres, with y up
     goal = sites[:, skel.end_site_names.index(hand)] + jnp.asarray([[0.0, _DEMO_IK_RAISE, 0.0]], sites.dtype)
     target = Target(hand, position=goal)
