@@ -167,3 +167,47 @@ def test_scan_levels_gives_the_same_steps():
     runs = [physics.rollout(physics.make_model(bodies, J, scan_levels=flag), state, _DT, 60) for flag in (False, True)]
     for field in ("position", "orientation", "linear_velocity", "angular_velocity"):
         np.testing.assert_array_equal(getattr(runs[0].trajectory, field), getattr(runs[1].trajectory, field))
+
+
+@pytest.mark.parametrize("scan_levels", [False, True], ids=["levels-written-out", "levels-scanned"])
+def test_tree_solve_satisfies_its_system_and_its_jvp_is_the_implicit_one(scan_levels):
+    """The tree solve on a random forest (a joint to the world, branching, a free body, 2
+    right-hand sides): its velocities and multipliers satisfy ``M V = p + J' lambda`` and
+    ``J V + C lambda = b`` (numpy); its custom JVP (one substitution with the linearized system's
+    right-hand sides) equals forward-mode autodiff through every elimination step, along a
+    symmetric inertia tangent."""
+    from jaxanim.physics import _tree_solve as T
+
+    rng = np.random.default_rng(3)
+    parent, child, B, k, m = (-1, 0, 1, 0), (0, 1, 2, 3), 5, 3, 2
+    plan = T._plan(parent, child, B)
+
+    def spd(scale):
+        a = rng.normal(size=(B, 6, 6))
+        return scale * (a @ np.swapaxes(a, -1, -2) + 6 * np.eye(6))
+
+    args = [spd(1.0), rng.normal(size=(B, 6, m)), rng.normal(size=(4, k, 6)), rng.normal(size=(4, k, 6)),
+            rng.normal(size=(4, k, m)), 1e-3 * np.abs(rng.normal(size=(4, k)))]
+    tangents = [spd(0.1), rng.normal(size=(B, 6, m)), rng.normal(size=(4, k, 6)), rng.normal(size=(4, k, 6)),
+                rng.normal(size=(4, k, m)), 1e-4 * rng.normal(size=(4, k))]
+    M, p, Jp, Jc, b, C = args
+
+    @jax.jit  # one program (eager would run the unrolled solve op by op)
+    def run(x, t):
+        V, lam = T._tree_solve_multipliers(plan, *x, scan_levels)
+        _, implicit = jax.jvp(lambda *a: T._tree_solve(plan, *a, scan_levels), x, t)
+        _, autodiff = jax.jvp(lambda *a: T._tree_solve_multipliers(plan, *a, scan_levels)[0], x, t)
+        return V, lam, T._tree_solve(plan, *x, scan_levels), implicit, autodiff
+
+    V, lam, v1, t1, t2 = (np.asarray(a) for a in run(tuple(map(jnp.asarray, args)), tuple(map(jnp.asarray, tangents))))
+    force = np.einsum("bij,bjm->bim", M, V) - p
+    for j, (pa, c) in enumerate(zip(parent, child)):
+        force[c] -= Jc[j].T @ lam[j]
+        row = Jc[j] @ V[c] + C[j][:, None] * lam[j] - b[j]
+        if pa >= 0:
+            force[pa] -= Jp[j].T @ lam[j]
+            row += Jp[j] @ V[pa]
+        np.testing.assert_allclose(row, 0.0, atol=1e-10)
+    np.testing.assert_allclose(force, 0.0, atol=1e-10)
+    np.testing.assert_array_equal(v1, V)
+    np.testing.assert_allclose(t1, t2, rtol=1e-10, atol=1e-12)
