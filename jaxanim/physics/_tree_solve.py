@@ -139,41 +139,56 @@ def _pad(a, value):
     return jnp.concatenate([a, jnp.broadcast_to(value, a.shape[1:])[None].astype(a.dtype)])
 
 
-def _level_factor(Mhat, pa, Mhat_c, Jp, Jc, C):
-    """A level's joints given their children's articulated inertias ``Mhat_c``: the parents'
-    inertias with ``J_p' S^{-1} J_p`` added, and the level's factors ``(M^^{-1} [n, 6, 6],
-    X = M^^{-1} J_c' [n, 6, k], S^{-1} [n, k, k], S^{-1} J_p [n, k, 6])``."""
+def _joint_factor(Mhat_c, Jc, C):
+    """Joints given their children's articulated inertias ``Mhat_c``: ``(M^^{-1} [n, 6, 6],
+    X = M^^{-1} J_c' [n, 6, k], S^{-1} [n, k, k])``."""
     Minv = _spd_inverse(Mhat_c)
     X = _bmm(Minv, jnp.swapaxes(Jc, -1, -2))
-    Sinv = _spd_inverse(_bmm(Jc, X) + jax.vmap(jnp.diag)(C))
+    return Minv, X, _spd_inverse(_bmm(Jc, X) + jax.vmap(jnp.diag)(C))
+
+
+def _level_factor(Mhat, pa, Mhat_c, Jp, Jc, C):
+    """A level's joints: the parents' inertias with ``J_p' S^{-1} J_p`` added, and the level's
+    factors ``(M^^{-1}, X, S^{-1}, S^{-1} J_p [n, k, 6])`` (:func:`_joint_factor`)."""
+    Minv, X, Sinv = _joint_factor(Mhat_c, Jc, C)
     SinvJp = _bmm(Sinv, Jp)
     return Mhat.at[pa].add(_bmm(jnp.swapaxes(Jp, -1, -2), SinvJp)), (Minv, X, Sinv, SinvJp)
 
 
+def _joint_up(phat_c, Jc, b, Minv):
+    """``(y = M^^{-1} p^_c, r = b - J_c y)``."""
+    y = _bmm(Minv, phat_c)
+    return y, b - _bmm(Jc, y)
+
+
 def _level_up(phat, c, pa, Jc, b, factors):
     """A level's right-hand sides: the parents' momenta with ``(S^{-1} J_p)' r`` added, and
-    ``(y = M^^{-1} p^_c, r = b - J_c y)``."""
+    ``(y, r)`` (:func:`_joint_up`)."""
     Minv, _, _, SinvJp = factors
-    y = _bmm(Minv, phat[c])
-    r = b - _bmm(Jc, y)
+    y, r = _joint_up(phat[c], Jc, b, Minv)
     return phat.at[pa].add(_bmm(jnp.swapaxes(SinvJp, -1, -2), r)), (y, r)
 
 
-def _level_down(V, lam, js, c, pa, Jp, factors, yr):
-    """A level's multipliers ``lambda = S^{-1} (r - J_p V_p)`` and child velocities ``y + X lambda``
-    (``V`` and ``lam`` start at zero and each entry is written once: added, which transposes)."""
-    _, X, Sinv, _ = factors
-    y, r = yr
-    lam_js = _bmm(Sinv, r - _bmm(Jp, V[pa]))
+def _joint_down(V, lam, js, c, X, Sinv, y, r):
+    """Joints' multipliers ``lambda = S^{-1} r`` and child velocities ``y + X lambda`` (``V`` and
+    ``lam`` start at zero and each entry is written once: added, which transposes)."""
+    lam_js = _bmm(Sinv, r)
     return V.at[c].add(y + _bmm(X, lam_js)), lam.at[js].add(lam_js)
 
 
+def _level_down(V, lam, js, c, pa, Jp, factors, yr):
+    """A level's multipliers and child velocities (:func:`_joint_down` with ``r - J_p V_p``)."""
+    _, X, Sinv, _ = factors
+    y, r = yr
+    return _joint_down(V, lam, js, c, X, Sinv, y, r - _bmm(Jp, V[pa]))
+
+
 def _root_factors(plan: _TreePlan, Mhat, Jc, C):
-    """The factors of the free roots (``M^^{-1}``) and of the joints to the world."""
+    """The factors of the free roots (``M^^{-1}``) and of the joints to the world
+    (:func:`_joint_factor`)."""
     world, free, child = plan.world, plan.free, plan.child
     free_inv = _spd_inverse(Mhat[free]) if free.size else None
-    world_f = _level_factor(Mhat, child[world], Mhat[child[world]], jnp.zeros_like(Jc[world]), Jc[world],
-                            C[world])[1] if world.size else None
+    world_f = _joint_factor(Mhat[child[world]], Jc[world], C[world]) if world.size else None
     return free_inv, world_f
 
 
@@ -187,8 +202,9 @@ def _roots(plan: _TreePlan, roots, phat, Jc, b, lam):
         V = V.at[free].add(_bmm(free_inv, phat[free]))
     if world.size:
         c = child[world]
-        _, yr = _level_up(phat, c, c, Jc[world], b[world], world_f)
-        V, lam = _level_down(V, lam, world, c, c, jnp.zeros_like(Jc[world]), world_f, yr)
+        Minv, X, Sinv = world_f
+        y, r = _joint_up(phat[c], Jc[world], b[world], Minv)
+        V, lam = _joint_down(V, lam, world, c, X, Sinv, y, r)
     return V, lam
 
 
