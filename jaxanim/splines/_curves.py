@@ -98,6 +98,14 @@ def _common_dtype(*xs: Array):
     return jnp.result_type(*(x.dtype for x in xs))
 
 
+def _keys(knots, points) -> tuple[Array, Array]:
+    """Checked ``knots [n]`` and ``points [n, *shape]``, cast to their common float dtype."""
+    knots = _check_knots("knots", knots)
+    points = _check_points("points", points, knots.shape[0])
+    dtype = _common_dtype(knots, points)
+    return knots.astype(dtype), points.astype(dtype)
+
+
 def _check_derivative(derivative, highest: int) -> int:
     if isinstance(derivative, bool) or not isinstance(derivative, (int, np.integer)) or not 0 <= derivative <= highest:
         raise JaxanimError(f"derivative: expected an int from 0 to {highest}, got {derivative!r}")
@@ -331,10 +339,7 @@ def linear_spline(knots: Float[ArrayLike, " n"], points: Float[ArrayLike, " n *s
         JaxanimError: on fewer than 2 knots, knots not strictly increasing, or points whose leading
             dimension is not ``n``.
     """
-    knots = _check_knots("knots", knots)
-    points = _check_points("points", points, knots.shape[0])
-    dtype = _common_dtype(knots, points)
-    return _build("linear", knots.astype(dtype), points.astype(dtype), None)
+    return _build("linear", *_keys(knots, points), None)
 
 
 def hermite_spline(
@@ -387,10 +392,7 @@ def catmull_rom_tangents(knots: Float[ArrayLike, " n"], points: Float[ArrayLike,
     Raises:
         JaxanimError: as :func:`catmull_rom_spline`.
     """
-    knots = _check_knots("knots", knots)
-    points = _check_points("points", points, knots.shape[0])
-    dtype = _common_dtype(knots, points)
-    return _catmull_rom_tangents_jit(knots.astype(dtype), points.astype(dtype))
+    return _catmull_rom_tangents_jit(*_keys(knots, points))
 
 
 @eqx.filter_jit
@@ -417,10 +419,7 @@ def catmull_rom_spline(knots: Float[ArrayLike, " n"], points: Float[ArrayLike, "
         JaxanimError: on fewer than 2 knots, knots not strictly increasing, or points whose leading
             dimension is not ``n``.
     """
-    knots = _check_knots("knots", knots)
-    points = _check_points("points", points, knots.shape[0])
-    dtype = _common_dtype(knots, points)
-    return _build("catmull_rom", knots.astype(dtype), points.astype(dtype), None)
+    return _build("catmull_rom", *_keys(knots, points), None)
 
 
 def natural_cubic_spline(knots: Float[ArrayLike, " n"], points: Float[ArrayLike, " n *shape"]) -> PiecewiseCubic:
@@ -450,10 +449,7 @@ def natural_cubic_spline(knots: Float[ArrayLike, " n"], points: Float[ArrayLike,
         JaxanimError: on fewer than 2 knots, knots not strictly increasing, or points whose leading
             dimension is not ``n``.
     """
-    knots = _check_knots("knots", knots)
-    points = _check_points("points", points, knots.shape[0])
-    dtype = _common_dtype(knots, points)
-    return _build("natural", knots.astype(dtype), points.astype(dtype), None)
+    return _build("natural", *_keys(knots, points), None)
 
 
 def bezier_spline(
