@@ -31,14 +31,18 @@ def _line_search_state(problem, y, r, J, short_fat, rtol, atol, *, steepest, **s
     return _State(**model, lam=zero, nu=zero, lam_scale=zero, diag=None, **status)
 
 
-def _line_search_init(solver, problem, y, args, *, steepest: bool) -> _State:
-    r, J = problem.linearize(y, args)
-    m, n = J.shape
-    rtol, atol = _tolerances(solver, y.dtype)
-    no = jnp.array(False)
-    return _line_search_state(
-        problem, y, r, J, m < n, rtol, atol,
-        steepest=steepest, stalled=no, stall_nonfinite=no, step_norm=jnp.zeros((), y.dtype),
+def _line_search_placeholder(problem, y, args) -> _State:
+    """The state before the first linearization: a zero pending step, whose line search takes its
+    first trial point, ``y`` itself, as the initial linearization (so the residual and its
+    Jacobian are compiled once, in the loop). Cost and gradient norm ``inf`` until then."""
+    dtype = y.dtype
+    r, J = jax.eval_shape(problem.linearize, y, args)
+    n = J.shape[1]
+    zero, inf, no = jnp.zeros((), dtype), jnp.asarray(jnp.inf, dtype), jnp.array(False)
+    return _State(
+        r=jnp.zeros(r.shape, dtype), J=jnp.zeros(J.shape, dtype), g=jnp.zeros(n, dtype), cost=inf, g_norm=inf,
+        p=jnp.zeros(n, dtype), y_trial=y, pred=zero, step_ok=jnp.array(True), lam=zero, nu=zero, lam_scale=zero,
+        diag=None, converged=no, stalled=no, stall_nonfinite=no, step_norm=zero, placeholder=jnp.array(True),
     )
 
 
@@ -59,6 +63,8 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
     """
     rtol, atol = _tolerances(solver, y.dtype)
     m, n = state.J.shape
+    # from the placeholder: the first trial point (y itself) is the initial linearization, taken
+    first = jnp.array(False) if state.placeholder is None else state.placeholder
 
     def trial(alpha):
         y_t = problem.project(y + alpha * state.p)
@@ -71,7 +77,7 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
             flat = jnp.abs(dF) <= jnp.sqrt(jnp.finfo(y.dtype).eps) * state.cost
             slope_t = (r_t @ J_t) @ (y_t - y)
             ok = ok | (finite & flat & (slope < 0) & (slope_t <= (2 * _ARMIJO_C1 - 1) * slope))
-        return y_t, r_t, J_t, ok, finite
+        return y_t, r_t, J_t, ok | first, finite
 
     # alpha = 1, 1/2, ..., 2^-max_backtracks; the first trial runs inside the loop too, so
     # that fn and its Jacobian are traced (and compiled) once.
@@ -93,7 +99,7 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
     new_state = _line_search_state(
         problem, y_new, r, J, m < n, rtol, atol,
         steepest=steepest, stalled=jnp.invert(accept), stall_nonfinite=jnp.invert(finite),
-        step_norm=jnp.max(jnp.abs(y_t - y)),
+        step_norm=jnp.max(jnp.abs(y_t - y)), placeholder=None if state.placeholder is None else jnp.array(False),
     )
     return y_new, new_state
 
@@ -115,7 +121,12 @@ class _AbstractLineSearch(AbstractLeastSquaresSolver):
         _check_int("max_backtracks", self.max_backtracks, 0)
 
     def init(self, problem, y, args):
-        return _line_search_init(self, problem, y, args, steepest=self.steepest)
+        """The state at ``y``: the first step from :meth:`init_placeholder`, which is how
+        :func:`least_squares` runs it (inside the loop)."""
+        return self.step(problem, y, args, self.init_placeholder(problem, y, args))[1]
+
+    def init_placeholder(self, problem, y, args):
+        return _line_search_placeholder(problem, y, args)
 
     def step(self, problem, y, args, state):
         return _line_search_step(self, problem, y, args, state, steepest=self.steepest)

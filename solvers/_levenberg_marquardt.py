@@ -72,12 +72,10 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     def _short_fat(self, m: int, n: int) -> bool:
         return m < n
 
-    def init(self, problem, y, args):
-        dtype = y.dtype
+    def _initial_damping(self, J):
+        """``(lambda, lambda_scale, D)`` at ``y0`` from its Jacobian."""
+        dtype = J.dtype
         eps = jnp.finfo(dtype).eps
-        r, J = problem.linearize(y, args)
-        m, n = J.shape
-        rtol, atol = _tolerances(self, dtype)
         colsq = jnp.sum(J * J, axis=0)
         diag = jnp.where(colsq > 0, colsq, 1) if self.scaling else None
         if self.weights is not None:
@@ -86,11 +84,28 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         lam_scale = jnp.max(colsq if diag is None else colsq / diag)
         lam_scale = jnp.where(jnp.isfinite(lam_scale) & (lam_scale > 0), lam_scale, 1)
         lam = jnp.clip(jnp.asarray(self.lambda0, dtype) * lam_scale, eps * lam_scale, lam_scale / eps)
-        model = _model(problem, y, r, J, lam, diag, self._short_fat(m, n), rtol, atol)
-        no = jnp.array(False)
+        return lam, lam_scale, diag
+
+    def init(self, problem, y, args):
+        """The state at ``y``: the first step from :meth:`init_placeholder`, which is how
+        :func:`least_squares` runs it (inside the loop)."""
+        return self.step(problem, y, args, self.init_placeholder(problem, y, args))[1]
+
+    def init_placeholder(self, problem, y, args):
+        """The state before the first linearization: its trial point is ``y`` itself, which the
+        first ``step`` linearizes and accepts, as ``init`` would (the same state after it), so the
+        residual and its Jacobian are compiled once, in the loop. Its cost and gradient norm are
+        ``inf`` (reported as such if ``y`` is not finite and the loop never starts)."""
+        dtype = y.dtype
+        r, J = jax.eval_shape(problem.linearize, y, args)
+        m, n = J.shape
+        zero, inf, no = jnp.zeros((), dtype), jnp.asarray(jnp.inf, dtype), jnp.array(False)
+        diag = None if not self.scaling and self.weights is None else jnp.ones(n, dtype)
         return _State(
-            **model, lam=lam, nu=jnp.asarray(2, dtype), lam_scale=lam_scale, diag=diag,
-            stalled=no, stall_nonfinite=no, step_norm=jnp.zeros((), dtype),
+            r=jnp.zeros(r.shape, dtype), J=jnp.zeros(J.shape, dtype), g=jnp.zeros(n, dtype), cost=inf,
+            g_norm=inf, p=jnp.zeros(n, dtype), y_trial=y, pred=zero, step_ok=jnp.array(True),
+            lam=zero, nu=jnp.asarray(2, dtype), lam_scale=jnp.ones((), dtype), diag=diag, converged=no,
+            stalled=no, stall_nonfinite=no, step_norm=zero, placeholder=jnp.array(True),
         )
 
     def step(self, problem, y, args, state):
@@ -103,7 +118,8 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         finite = _all_finite(r_t, J_t)
         valid = state.step_ok & (state.pred > 0)
         rho = -_cost_change(state.r, r_t) / jnp.where(valid, state.pred, 1)
-        accept = finite & valid & (rho > 0)
+        first = jnp.array(False) if state.placeholder is None else state.placeholder
+        accept = first | (finite & valid & (rho > 0))  # the first linearization is init's: taken
         lam_max = state.lam_scale / eps
         lam_acc = jnp.maximum(state.lam * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), eps * state.lam_scale)
         lam = jnp.where(accept, lam_acc, jnp.minimum(state.lam * state.nu, lam_max))
@@ -112,17 +128,21 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         y_new = jnp.where(accept, y_t, y)
         r = jnp.where(accept, r_t, state.r)
         J = jnp.where(accept, J_t, state.J)
-        diag = state.diag
+        diag, lam_scale = state.diag, state.lam_scale
         if self.scaling:
             colsq = jnp.sum(J * J, axis=0)
             if self.weights is not None:
                 colsq = colsq * jnp.asarray(self.weights, dtype)
             diag = jnp.where(accept, jnp.maximum(diag, colsq), diag)
+        if state.placeholder is not None:  # from the placeholder: init's damping at y0
+            lam0, scale0, diag0 = self._initial_damping(J)
+            lam, lam_scale = jnp.where(first, lam0, lam), jnp.where(first, scale0, lam_scale)
+            diag = diag if diag is None else jnp.where(first, diag0, diag)
         model = _model(problem, y_new, r, J, lam, diag, self._short_fat(m, n), rtol, atol)
         new_state = _State(
-            **model, lam=lam, nu=nu, lam_scale=state.lam_scale, diag=diag,
+            **model, lam=lam, nu=nu, lam_scale=lam_scale, diag=diag,
             stalled=stalled, stall_nonfinite=stalled & jnp.invert(finite),
-            step_norm=jnp.max(jnp.abs(y_t - y)),
+            step_norm=jnp.max(jnp.abs(y_t - y)), placeholder=None if state.placeholder is None else jnp.array(False),
         )
         return y_new, new_state
 
