@@ -208,7 +208,6 @@ def test_ik_matches_scipy_least_squares():
     skel = small_skeleton()
     q, t = random_pose(skel, 9)
     base = _fk(skel, q, t).end_site_positions
-    far = _fk(skel, *random_pose(skel, 10)).end_site_positions
     cases = {
         # near the start: both solvers end in the same basin
         "near": (ik.Target("forearm_End", base[1] + 0.05), ik.Target("head_End", base[0] - 0.03, weight=0.5)),

@@ -181,7 +181,6 @@ def _cmd_fk(args: argparse.Namespace, ui: _UI) -> int:
 def _cmd_ik(args: argparse.Namespace, ui: _UI) -> int:
     import json
 
-    from ..skeleton._bvh import write_bvh
     from ..ik import solve_ik_clip, targets_from_json
 
     clip = _load(args.file, ui, args.dtype)

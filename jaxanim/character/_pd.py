@@ -23,7 +23,6 @@ step's constraint solve: see ``spd`` of :func:`jaxanim.physics.step`.
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import rotations as rot

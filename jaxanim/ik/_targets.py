@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from .._errors import JaxanimError, check_shape
 from ..kinematics._jacobians import _site_indices

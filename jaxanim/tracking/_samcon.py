@@ -164,14 +164,22 @@ def tracking_reference(character: Character, motion: Motion, *, ground_clip: boo
         raise JaxanimError(f"motion: expected at least 2 frames to track, got {motion.num_frames}")
     dt = float(motion.frame_time)
     targets, states = _clip_targets(character, motion.rotations, motion.translations)
+    states, lift = _grounded_states(character, states, jnp.asarray(dt, states.position.dtype),
+                                    ground_clip and character.model.ground.model != "none")
+    return TrackingReference(targets=targets, states=states, frame_time=jnp.asarray(dt, states.position.dtype), lift=lift)
+
+
+@eqx.filter_jit
+def _grounded_states(character: Character, states: BodyState, dt, ground_clip: bool):
+    """The clip's body states lifted onto the ground (``ground_clip``), with velocities: one
+    program (op by op, the lift and the differences compiled about a hundred small programs)."""
     lift = jnp.zeros((), states.position.dtype)
     ground = character.model.ground
-    if ground_clip and ground.model != "none":
+    if ground_clip:
         lowest = jax.vmap(lambda s: jnp.min(_geometry(ground, character.model.bodies, s)[2]))(states)
         lift = -jnp.median(lowest)
         states = eqx.tree_at(lambda s: s.position, states, states.position + lift * ground.normal[None, None, :])
-    states = _velocities(states, dt)
-    return TrackingReference(targets=targets, states=states, frame_time=jnp.asarray(dt, states.position.dtype), lift=lift)
+    return _velocities(states, dt), lift
 
 
 class Feedback(eqx.Module):
