@@ -111,9 +111,11 @@ def _as_spd(spd, num_joints: int, dtype) -> StablePD:
     gains = [_per_joint(f"spd {name}", g, num_joints) for name, g in (("kp", kp), ("kd", kd))]
     limit = spd.torque_limit
     if limit is not None:
+        # checked in numpy: a concrete limit closed over by a jitted function is not a tracer, but
+        # jnp ops on it inside the trace would be (and bool() of them an error)
+        if not isinstance(limit, jax.core.Tracer) and np.any(np.isnan(host := np.asarray(limit)) | (host < 0)):
+            raise JaxanimError(f"spd torque_limit: expected non-negative N m (inf for no bound), got {host}")
         limit = _per_joint("spd torque_limit", jnp.asarray(limit, dtype), num_joints)
-        if not isinstance(limit, jax.core.Tracer) and bool(jnp.any(jnp.isnan(limit) | (limit < 0))):
-            raise JaxanimError(f"spd torque_limit: expected non-negative N m (inf for no bound), got {limit}")
     return StablePD(targets, *gains, limit)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -65,8 +66,12 @@ def resample(motion: Motion, frame_time: float | None = None, *, fps: float | No
     ratio = new_dt / old_dt
     n = int(math.floor((motion.num_frames - 1) / ratio + 1e-9)) + 1
     frames = np.arange(n, dtype=np.float64) * ratio
-    out = resample_at(motion, jnp.asarray(frames, dtype=motion.rotations.dtype))
+    out = _resample_at_jit(motion, jnp.asarray(frames, dtype=motion.rotations.dtype))
     return Motion(out.rotations, out.translations, jnp.asarray(new_dt, dtype=motion.rotations.dtype))
+
+
+# one program per clip shape (op by op, each of its ~50 ops compiled for every new shape)
+_resample_at_jit = eqx.filter_jit(resample_at)
 
 
 def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
