@@ -312,8 +312,8 @@ KERNELS: tuple[Kernel, ...] = (
            "One LM iteration is FK + Jacobian + a 30x30 Cholesky per problem: hundreds of XLA instructions per "
            "iteration on 128-problem lanes, each a small kernel; the Cholesky and triangular solves are LAPACK "
            "calls per problem. Compile time is the LLVM build of every kernel: the program has the residual and "
-           "Jacobian twice (initial linearization, then in the loop), the final check once, and the lanes' "
-           "bookkeeping."),
+           "Jacobian once (the loop's first iteration is the initial linearization), the final check once, and "
+           "the lanes' bookkeeping."),
     Kernel("IK optimistix LM", "float64", 1024, "ik: the optimistix backend within 3x of own LM", _optimistix_ik,
            "optimistix's LevenbergMarquardt computes each damped step as the least-squares solution of the stacked "
            "[J; sqrt(lambda) I] (126 x 96) by lineax's dense QR (the geqrf / ormqr library calls above), where own "
