@@ -61,7 +61,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import JaxanimError
 from .. import rotations as rot
 from ._build import Character, character_state, spd_targets
-from ..physics._contact import _geometry
+from ..physics._contact import _geometry, contact_points
 from ..kinematics._fk import forward_kinematics, global_to_local
 from ..physics._joints import Joints
 from ..physics._bodies import BodyState, RigidBodies, bodies_center_of_mass
@@ -335,10 +335,27 @@ class BalanceController(eqx.Module):
         return Control(force=force, joint_torque=tau, spd=StablePD(self.targets, args["kp"], args["kd"]))
 
 
-def _heights(character: Character, state: BodyState) -> tuple[np.ndarray, np.ndarray]:
-    """``(body [K], height [K])``: every contact point's owner and signed distance to the ground plane."""
-    body, _, phi, _ = _geometry(character.model.ground, character.model.bodies, state)
-    return body, np.asarray(phi)
+def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
+    """The rotation matrix of a rotation vector (Rodrigues), on the host."""
+    v = np.asarray(v, float)
+    theta = float(np.linalg.norm(v))
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    if theta < 1e-12:
+        return np.eye(3) + K
+    K = K / theta
+    return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+
+
+@eqx.filter_jit
+def _standing_measures(character: Character, R, P, up, feet: tuple[int, ...]):
+    """For global rotations ``R [J, 3, 3]`` and positions ``P [J, 3]`` (file units): the local pose,
+    the support center minus the center of mass, and every contact point's height (one program: the
+    Newton iterations of :func:`standing_pose` evaluate it a few dozen times)."""
+    qs, ts = global_to_local(character.skeleton, R, P)
+    s = character_state(character, qs, ts)
+    c, _ = bodies_center_of_mass(character.model.bodies, s)
+    _, _, phi, _ = _geometry(character.model.ground, character.model.bodies, s)
+    return qs, ts, _feet_center(s, feet, up) - c, phi
 
 
 def _ankles(skel, ankle_names, exclude_names) -> tuple[list[int], np.ndarray]:
@@ -425,9 +442,14 @@ def standing_pose(
     ankles, below = _ankles(skel, ankle_names, exclude_names)
     flat = _flat_feet(character, R0, below, up, foot_names)  # (1) flat feet
 
+    feet = tuple(_foot_bodies(character, foot_names))
+    cbody = np.asarray(contact_points(character.model.bodies)[0])
+    up_arr = jnp.asarray(up, jnp.float64)
+
     def pose(rotvec: np.ndarray):
+        """``(rotations, translations, c_bar - c [3], contact heights [K])`` of the pose turned by ``rotvec``."""
         pivot = np.mean(P0[ankles], axis=0)
-        Rl = np.asarray(rot.quat_to_matrix(rot.rotvec_to_quat(jnp.asarray(rotvec))))
+        Rl = _rotvec_matrix(rotvec)
         R = np.einsum("ij,njk->nik", Rl, R0)
         P = pivot + (P0 - pivot) @ Rl.T
         F = {}
@@ -439,41 +461,36 @@ def standing_pose(
             R[j] = F[j] @ R0[j]
             if j not in ankles:
                 P[j] = P[p] + R[p] @ R0[p].T @ (P0[j] - P0[p])
-        qs, ts = global_to_local(skel, jnp.asarray(R), jnp.asarray(P / character.unit))
-        return qs, ts
+        qs, ts, offset, heights = _standing_measures(character, jnp.asarray(R), jnp.asarray(P / character.unit), up_arr,
+                                                     feet)
+        return qs, ts, np.asarray(offset), np.asarray(heights)
 
     body_below = np.asarray([below[j] for j in character.body_joint])
 
     def residual(theta: np.ndarray, d: np.ndarray):
         # [c_bar - c along d, height of the first foot's lowest point minus the second's]
-        qs, ts = pose(theta[0] * np.cross(up, d) + theta[1] * d)
-        s = character_state(character, qs, ts)
-        c, _ = bodies_center_of_mass(character.model.bodies, s)
-        r = [float(np.asarray(support_center(character, s, foot_names=foot_names) - c) @ d)]
+        qs, ts, offset, h = pose(theta[0] * np.cross(up, d) + theta[1] * d)
+        r = [float(offset @ d)]
         if len(ankles) == 2:
-            cbody, h = _heights(character, s)
             r.append(float(h[body_below[cbody] == ankles[0]].min() - h[body_below[cbody] == ankles[1]].min()))
-        return np.asarray(r), (qs, ts)
+        return np.asarray(r), (qs, ts, h)
 
-    qs, ts = pose(np.zeros(3))
-    s = character_state(character, qs, ts)
-    c, _ = bodies_center_of_mass(character.model.bodies, s)
-    e = np.asarray(support_center(character, s, foot_names=foot_names) - c)
+    qs, ts, e, h = pose(np.zeros(3))
     e = e - (e @ up) * up
     if lean and np.linalg.norm(e) > 1e-9:
         d = e / np.linalg.norm(e)
         theta = np.zeros(2)
         for _ in range(iterations):  # Newton with forward differences (two unknowns: pitch, roll)
-            r, (qs, ts) = residual(theta, d)
+            r, (qs, ts, h) = residual(theta, d)
             if np.max(np.abs(r)) < 1e-6:
                 break
             n = r.size
             Jac = np.stack([(residual(theta + 1e-4 * np.eye(2)[k], d)[0] - r) / 1e-4 for k in range(n)], axis=1)
             theta[:n] = theta[:n] - np.linalg.solve(Jac, r)
         else:
-            r, (qs, ts) = residual(theta, d)
+            r, (qs, ts, h) = residual(theta, d)
     # (3) Vertical placement.
-    low = float(_heights(character, character_state(character, qs, ts))[1].min())
+    low = float(h.min())
     root = [j for j in range(J) if skel.parents[j] < 0]
     shift = (clearance - low) * np.asarray(character.model.ground.normal, float) / character.unit
     ts = ts.at[np.asarray(root)].add(jnp.asarray(shift, ts.dtype))

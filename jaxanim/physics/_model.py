@@ -111,8 +111,10 @@ def make_model(
                         ground=ground, scan_levels=bool(scan_levels))
 
 
+@eqx.filter_jit
 def joint_error(model: PhysicsModel, state: BodyState) -> Float[Array, " J"]:
-    """Per joint, the distance between its two anchors (meters): the constraint drift."""
+    """Per joint, the distance between its two anchors (meters): the constraint drift (one compiled
+    program per model structure; called eagerly it would compile some eighty small ones)."""
     _, _, g = joint_rows(model.joints, state)
     return jnp.linalg.norm(g[:, :3], axis=-1)
 
