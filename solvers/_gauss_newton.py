@@ -15,6 +15,7 @@ from ._ls_base import (
     AbstractLeastSquaresSolver,
     _cost_change,
     _model,
+    _placeholder,
     _State,
     _stats,
     _terminate,
@@ -29,21 +30,6 @@ def _line_search_state(problem, y, r, J, short_fat, rtol, atol, *, steepest, **s
     zero = jnp.zeros((), y.dtype)
     model = _model(problem, y, r, J, zero, None, short_fat, rtol, atol, steepest=steepest)
     return _State(**model, lam=zero, nu=zero, lam_scale=zero, diag=None, **status)
-
-
-def _line_search_placeholder(problem, y, args) -> _State:
-    """The state before the first linearization: a zero pending step, whose line search takes its
-    first trial point, ``y`` itself, as the initial linearization (so the residual and its
-    Jacobian are compiled once, in the loop). Cost and gradient norm ``inf`` until then."""
-    dtype = y.dtype
-    r, J = jax.eval_shape(problem.linearize, y, args)
-    n = J.shape[1]
-    zero, inf, no = jnp.zeros((), dtype), jnp.asarray(jnp.inf, dtype), jnp.array(False)
-    return _State(
-        r=jnp.zeros(r.shape, dtype), J=jnp.zeros(J.shape, dtype), g=jnp.zeros(n, dtype), cost=inf, g_norm=inf,
-        p=jnp.zeros(n, dtype), y_trial=y, pred=zero, step_ok=jnp.array(True), lam=zero, nu=zero, lam_scale=zero,
-        diag=None, converged=no, stalled=no, stall_nonfinite=no, step_norm=zero, placeholder=jnp.array(True),
-    )
 
 
 def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tuple[Float[Array, " n"], _State]:
@@ -63,8 +49,9 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
     """
     rtol, atol = _tolerances(solver, y.dtype)
     m, n = state.J.shape
-    # from the placeholder: the first trial point (y itself) is the initial linearization, taken
-    first = jnp.array(False) if state.placeholder is None else state.placeholder
+    # from the placeholder (zero pending step): the first trial point, y itself, is the initial
+    # linearization, taken
+    first = state.first
 
     def trial(alpha):
         y_t = problem.project(y + alpha * state.p)
@@ -120,13 +107,8 @@ class _AbstractLineSearch(AbstractLeastSquaresSolver):
         _check_int("max_steps", self.max_steps, 1)
         _check_int("max_backtracks", self.max_backtracks, 0)
 
-    def init(self, problem, y, args):
-        """The state at ``y``: the first step from :meth:`init_placeholder`, which is how
-        :func:`least_squares` runs it (inside the loop)."""
-        return self.step(problem, y, args, self.init_placeholder(problem, y, args))[1]
-
     def init_placeholder(self, problem, y, args):
-        return _line_search_placeholder(problem, y, args)
+        return _placeholder(problem, y, args)
 
     def step(self, problem, y, args, state):
         return _line_search_step(self, problem, y, args, state, steepest=self.steepest)

@@ -13,6 +13,7 @@ from ._ls_base import (
     AbstractLeastSquaresSolver,
     _cost_change,
     _model,
+    _placeholder,
     _State,
     _stats,
     _terminate,
@@ -86,27 +87,13 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         lam = jnp.clip(jnp.asarray(self.lambda0, dtype) * lam_scale, eps * lam_scale, lam_scale / eps)
         return lam, lam_scale, diag
 
-    def init(self, problem, y, args):
-        """The state at ``y``: the first step from :meth:`init_placeholder`, which is how
-        :func:`least_squares` runs it (inside the loop)."""
-        return self.step(problem, y, args, self.init_placeholder(problem, y, args))[1]
-
     def init_placeholder(self, problem, y, args):
         """The state before the first linearization: its trial point is ``y`` itself, which the
-        first ``step`` linearizes and accepts, as ``init`` would (the same state after it), so the
-        residual and its Jacobian are compiled once, in the loop. Its cost and gradient norm are
-        ``inf`` (reported as such if ``y`` is not finite and the loop never starts)."""
+        first ``step`` linearizes and accepts with ``init``'s damping (the same state as an
+        eager ``init``), so the residual and its Jacobian are compiled once, in the loop."""
         dtype = y.dtype
-        r, J = jax.eval_shape(problem.linearize, y, args)
-        m, n = J.shape
-        zero, inf, no = jnp.zeros((), dtype), jnp.asarray(jnp.inf, dtype), jnp.array(False)
-        diag = None if not self.scaling and self.weights is None else jnp.ones(n, dtype)
-        return _State(
-            r=jnp.zeros(r.shape, dtype), J=jnp.zeros(J.shape, dtype), g=jnp.zeros(n, dtype), cost=inf,
-            g_norm=inf, p=jnp.zeros(n, dtype), y_trial=y, pred=zero, step_ok=jnp.array(True),
-            lam=zero, nu=jnp.asarray(2, dtype), lam_scale=jnp.ones((), dtype), diag=diag, converged=no,
-            stalled=no, stall_nonfinite=no, step_norm=zero, placeholder=jnp.array(True),
-        )
+        diag = None if not self.scaling and self.weights is None else jnp.ones(y.shape[0], dtype)
+        return _placeholder(problem, y, args, nu=jnp.asarray(2, dtype), lam_scale=jnp.ones((), dtype), diag=diag)
 
     def step(self, problem, y, args, state):
         dtype = y.dtype
@@ -118,7 +105,7 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         finite = _all_finite(r_t, J_t)
         valid = state.step_ok & (state.pred > 0)
         rho = -_cost_change(state.r, r_t) / jnp.where(valid, state.pred, 1)
-        first = jnp.array(False) if state.placeholder is None else state.placeholder
+        first = state.first
         accept = first | (finite & valid & (rho > 0))  # the first linearization is init's: taken
         lam_max = state.lam_scale / eps
         lam_acc = jnp.maximum(state.lam * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), eps * state.lam_scale)

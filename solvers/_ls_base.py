@@ -4,6 +4,7 @@ local model and its convergence test, the abstract solver, and the run on the it
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 from equinox import AbstractVar
@@ -108,9 +109,30 @@ class _State(eqx.Module):
     stalled: Bool[Array, ""]  # no acceptable step could be found
     stall_nonfinite: Bool[Array, ""]  # ... because the last trial point was non-finite
     step_norm: Float[Array, ""]  # |s|_inf of the last step tried
-    # Levenberg-Marquardt's placeholder before the first linearization (see ``init_placeholder``);
-    # None for the solvers that linearize in ``init``
+    # the placeholder before the first linearization (see ``init_placeholder``); None for a solver
+    # that linearizes in ``init``
     placeholder: Bool[Array, ""] | None = None
+
+    @property
+    def first(self) -> Bool[Array, ""]:
+        """The state is the placeholder: the coming step is the initial linearization."""
+        return jnp.array(False) if self.placeholder is None else self.placeholder
+
+
+def _placeholder(problem: _Problem, y: Float[Array, " n"], args: PyTree, **fields) -> _State:
+    """The state at ``y`` before its linearization: zero residual, Jacobian, step and damping (or
+    ``fields``), a trial point ``y`` itself and ``inf`` cost and gradient norm (what is reported if
+    ``y`` is not finite and the loop never starts)."""
+    dtype = y.dtype
+    r, J = jax.eval_shape(problem.linearize, y, args)
+    n = J.shape[1]
+    zero, no = jnp.zeros((), dtype), jnp.array(False)
+    state = dict(
+        r=jnp.zeros(r.shape, dtype), J=jnp.zeros(J.shape, dtype), g=jnp.zeros(n, dtype), cost=jnp.asarray(jnp.inf, dtype),
+        g_norm=jnp.asarray(jnp.inf, dtype), p=jnp.zeros(n, dtype), y_trial=y, pred=zero, step_ok=jnp.array(True),
+        lam=zero, nu=zero, lam_scale=zero, diag=None, converged=no, stalled=no, stall_nonfinite=no, step_norm=zero,
+    )
+    return _State(**{**state, **fields}, placeholder=jnp.array(True))
 
 
 def _model(
@@ -182,9 +204,13 @@ class AbstractLeastSquaresSolver(eqx.Module):
     max_steps: AbstractVar[int]
     fixed_steps: AbstractVar[bool]
 
-    @abc.abstractmethod
     def init(self, problem: _Problem, y: Float[Array, " n"], args: PyTree) -> _State:
-        """Linearize at ``y`` (already inside the box) and prepare the first step."""
+        """Linearize at ``y`` (already inside the box) and prepare the first step: by default the
+        first step from :meth:`init_placeholder`, which is how :func:`least_squares` runs it."""
+        placeholder = self.init_placeholder(problem, y, args)
+        if placeholder is None:
+            raise NotImplementedError(f"{type(self).__name__}: define init or init_placeholder")
+        return self.step(problem, y, args, placeholder)[1]
 
     @abc.abstractmethod
     def step(
