@@ -51,7 +51,7 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
     m, n = state.J.shape
     # from the placeholder (zero pending step): the first trial point, y itself, is the initial
     # linearization, taken
-    first = state.first
+    first = state.placeholder
 
     def trial(alpha):
         y_t = problem.project(y + alpha * state.p)
@@ -86,7 +86,7 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
     new_state = _line_search_state(
         problem, y_new, r, J, m < n, rtol, atol,
         steepest=steepest, stalled=jnp.invert(accept), stall_nonfinite=jnp.invert(finite),
-        step_norm=jnp.max(jnp.abs(y_t - y)), placeholder=None if state.placeholder is None else jnp.array(False),
+        step_norm=jnp.max(jnp.abs(y_t - y)), placeholder=jnp.array(False),
     )
     return y_new, new_state
 

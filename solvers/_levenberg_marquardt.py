@@ -89,8 +89,8 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
 
     def init_placeholder(self, problem, y, args):
         """The state before the first linearization: its trial point is ``y`` itself, which the
-        first ``step`` linearizes and accepts with ``init``'s damping (the same state as an
-        eager ``init``), so the residual and its Jacobian are compiled once, in the loop."""
+        first ``step`` linearizes and accepts with the initial damping, so the residual and its
+        Jacobian are compiled once, in the loop."""
         dtype = y.dtype
         diag = None if not self.scaling and self.weights is None else jnp.ones(y.shape[0], dtype)
         return _placeholder(problem, y, args, nu=jnp.asarray(2, dtype), lam_scale=jnp.ones((), dtype), diag=diag)
@@ -105,7 +105,7 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         finite = _all_finite(r_t, J_t)
         valid = state.step_ok & (state.pred > 0)
         rho = -_cost_change(state.r, r_t) / jnp.where(valid, state.pred, 1)
-        first = state.first
+        first = state.placeholder
         accept = first | (finite & valid & (rho > 0))  # the first linearization is init's: taken
         lam_max = state.lam_scale / eps
         lam_acc = jnp.maximum(state.lam * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), eps * state.lam_scale)
@@ -121,15 +121,15 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
             if self.weights is not None:
                 colsq = colsq * jnp.asarray(self.weights, dtype)
             diag = jnp.where(accept, jnp.maximum(diag, colsq), diag)
-        if state.placeholder is not None:  # from the placeholder: init's damping at y0
-            lam0, scale0, diag0 = self._initial_damping(J)
-            lam, lam_scale = jnp.where(first, lam0, lam), jnp.where(first, scale0, lam_scale)
-            diag = diag if diag is None else jnp.where(first, diag0, diag)
+        # from the placeholder: the initial damping at y0
+        lam0, scale0, diag0 = self._initial_damping(J)
+        lam, lam_scale = jnp.where(first, lam0, lam), jnp.where(first, scale0, lam_scale)
+        diag = diag if diag is None else jnp.where(first, diag0, diag)
         model = _model(problem, y_new, r, J, lam, diag, self._short_fat(m, n), rtol, atol)
         new_state = _State(
             **model, lam=lam, nu=nu, lam_scale=lam_scale, diag=diag,
             stalled=stalled, stall_nonfinite=stalled & jnp.invert(finite),
-            step_norm=jnp.max(jnp.abs(y_t - y)), placeholder=None if state.placeholder is None else jnp.array(False),
+            step_norm=jnp.max(jnp.abs(y_t - y)), placeholder=jnp.array(False),
         )
         return y_new, new_state
 

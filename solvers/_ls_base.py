@@ -11,7 +11,6 @@ from equinox import AbstractVar
 from jaxtyping import Array, Bool, Float, PyTree
 
 from ._checks import _all_finite
-from . import _lanes
 from ._iterate import iterate
 from ._ls_problem import _Problem
 from ._results import RESULTS, Solution
@@ -109,14 +108,9 @@ class _State(eqx.Module):
     stalled: Bool[Array, ""]  # no acceptable step could be found
     stall_nonfinite: Bool[Array, ""]  # ... because the last trial point was non-finite
     step_norm: Float[Array, ""]  # |s|_inf of the last step tried
-    # the placeholder before the first linearization (see ``init_placeholder``); None for a solver
-    # that linearizes in ``init``
-    placeholder: Bool[Array, ""] | None = None
-
-    @property
-    def first(self) -> Bool[Array, ""]:
-        """The state is the placeholder: the coming step is the initial linearization."""
-        return jnp.array(False) if self.placeholder is None else self.placeholder
+    # the placeholder before the first linearization (``init_placeholder``): the coming step is
+    # the initial linearization
+    placeholder: Bool[Array, ""]
 
 
 def _placeholder(problem: _Problem, y: Float[Array, " n"], args: PyTree, **fields) -> _State:
@@ -192,7 +186,8 @@ def _tolerances(solver, dtype) -> tuple[Float[Array, ""], Float[Array, ""]]:
 
 
 class AbstractLeastSquaresSolver(eqx.Module):
-    """A least-squares method driven by :func:`least_squares` through ``init/step/terminate/postprocess``.
+    """A least-squares method driven by :func:`least_squares` through
+    ``init_placeholder/step/terminate/postprocess``.
 
     Subclasses are final. They provide the fields ``rtol``, ``atol`` (arrays), ``max_steps``
     (static int) and ``fixed_steps`` (static bool); the driver owns the loop, ``max_steps``, the
@@ -204,26 +199,17 @@ class AbstractLeastSquaresSolver(eqx.Module):
     max_steps: AbstractVar[int]
     fixed_steps: AbstractVar[bool]
 
-    def init(self, problem: _Problem, y: Float[Array, " n"], args: PyTree) -> _State:
-        """Linearize at ``y`` (already inside the box) and prepare the first step: by default the
-        first step from :meth:`init_placeholder`, which is how :func:`least_squares` runs it."""
-        placeholder = self.init_placeholder(problem, y, args)
-        if placeholder is None:
-            raise NotImplementedError(f"{type(self).__name__}: define init or init_placeholder")
-        return self.step(problem, y, args, placeholder)[1]
+    @abc.abstractmethod
+    def init_placeholder(self, problem: _Problem, y: Float[Array, " n"], args: PyTree) -> _State:
+        """The state at ``y`` (already inside the box) before its linearization: the first ``step``
+        from it is the initial linearization, so the compiled program holds the residual and its
+        Jacobian once, in the loop."""
 
     @abc.abstractmethod
     def step(
         self, problem: _Problem, y: Float[Array, " n"], args: PyTree, state: _State
     ) -> tuple[Float[Array, " n"], _State]:
         """One iteration: returns the next iterate (possibly ``y`` itself) and state."""
-
-    def init_placeholder(self, problem: _Problem, y: Float[Array, " n"], args: PyTree) -> _State | None:
-        """A state at ``y`` that is not linearized yet, for a solver whose ``step`` from it performs
-        ``init`` (the first iteration is then the initial linearization, and the compiled program
-        holds the residual and its Jacobian once, in the loop, instead of twice); ``None`` (the
-        default): ``init`` linearizes before the loop."""
-        return None
 
     @abc.abstractmethod
     def terminate(
@@ -284,7 +270,7 @@ class _Loop(eqx.Module):
 def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array, " n"], args: PyTree) -> Solution:
     """Run ``solver`` from ``y0`` (inside the box) on :func:`solvers._iterate.iterate`.
 
-    The own solvers start from :meth:`~AbstractLeastSquaresSolver.init_placeholder`: the loop's
+    The solvers start from :meth:`~AbstractLeastSquaresSolver.init_placeholder`: the loop's
     first iteration is the initial linearization (not counted in ``num_steps``, and not recorded in
     ``cost_history``), so the residual and its Jacobian appear once in the compiled program (the
     IK solve on the CMU skeleton compiles in 2.5 s instead of 3.4 s).
@@ -305,19 +291,14 @@ def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array,
     def step(c: _Loop) -> _Loop:
         return loop(*solver.step(problem, c.y, args, c.state))
 
-    placeholder = solver.init_placeholder(problem, y0, args)
-    if placeholder is None:
-        # the first linearization at the compacted loop's shapes (lane-width chunks) when it is one
-        init = _lanes.lane_map(lambda y, a: loop(y, solver.init(problem, y, a)), y0, args,
-                               chunks=not solver.fixed_steps)
-    else:  # the loop's first iteration is the initial linearization: one step more, not counted
-        init = _Loop(y=y0, state=placeholder, stop=jnp.array(False), result=RESULTS.successful)
-    extra = 0 if placeholder is None else 1
+    # the loop's first iteration is the initial linearization: one step more, not counted
+    init = _Loop(y=y0, state=solver.init_placeholder(problem, y0, args), stop=jnp.array(False),
+                 result=RESULTS.successful)
     it = iterate(
         step,
         init,
         done=lambda c: c.stop,
-        max_steps=solver.max_steps + extra,
+        max_steps=solver.max_steps + 1,
         fixed_steps=solver.fixed_steps,
         finite=lambda c: _all_finite(c.y, c.state.r, c.state.J),
         record=lambda c: c.state.cost,
@@ -327,7 +308,7 @@ def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array,
         it.nonfinite, RESULTS.nonfinite, RESULTS.where(it.done, c.result, RESULTS.max_steps_reached)
     )
     value, stats = solver.postprocess(problem, c.y, args, c.state, result)
-    history = it.history[extra:]
+    history = it.history[1:]
     history = jnp.where(jnp.isfinite(history), history, jnp.inf)
-    stats = dict(stats, num_steps=jnp.maximum(it.num_steps - extra, 0), cost_history=history)
+    stats = dict(stats, num_steps=jnp.maximum(it.num_steps - 1, 0), cost_history=history)
     return Solution(value=value, result=result, stats=stats)
