@@ -335,17 +335,6 @@ class BalanceController(eqx.Module):
         return Control(force=force, joint_torque=tau, spd=StablePD(self.targets, args["kp"], args["kd"]))
 
 
-def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
-    """The rotation matrix of a rotation vector (Rodrigues), on the host."""
-    v = np.asarray(v, float)
-    theta = float(np.linalg.norm(v))
-    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    if theta < 1e-12:
-        return np.eye(3) + K
-    K = K / theta
-    return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
-
-
 @eqx.filter_jit
 def _standing_measures(character: Character, R, P, up, feet: tuple[int, ...]):
     """For global rotations ``R [J, 3, 3]`` and positions ``P [J, 3]`` (file units): the local pose,
@@ -449,7 +438,7 @@ def standing_pose(
     def pose(rotvec: np.ndarray):
         """``(rotations, translations, c_bar - c [3], contact heights [K])`` of the pose turned by ``rotvec``."""
         pivot = np.mean(P0[ankles], axis=0)
-        Rl = _rotvec_matrix(rotvec)
+        Rl = np.asarray(rot.rotvec_to_matrix(jnp.asarray(rotvec)))
         R = np.einsum("ij,njk->nik", Rl, R0)
         P = pivot + (P0 - pivot) @ Rl.T
         F = {}
