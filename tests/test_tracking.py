@@ -5,9 +5,9 @@ One small search shape is compiled for the whole file: the shipped walk's first 
 checked against an independent reference: the search beats the clip's own uncorrected stable-PD
 targets (the open-loop baseline, the same simulator) on the tracking cost; the replay of the kept
 corrections reproduces the cost the search recorded (the simulation is deterministic); vmap over
-seeds equals a loop (on a 4-joint character, cheaper to compile); the linearization of a frame equals central finite differences of the public
-``physics.step``; with the LQR gains a 100 N push on the torso at mid-clip does not fell the
-character, while the open-loop corrections alone fall.
+seeds equals a loop (on a 4-joint character, cheaper to compile); the linearization of a frame
+equals central finite differences of the public ``physics.step``; with the LQR gains a 100 N push
+on the torso at mid-clip does not fell the character, while the open-loop corrections alone fall.
 """
 
 from __future__ import annotations
@@ -87,7 +87,8 @@ def test_search_is_deterministic_and_vmap_over_seeds_equals_a_loop():
     ground = make_ground("complementarity", max_points=8, iterations=10, dtype=jnp.float64)
     char, _ = character.build_character(skel, ground=ground)
     rest = jaxanim.rest_motion(skel, 13)
-    wave = jaxanim.rotations.rotvec_to_quat(0.5 * jnp.sin(jnp.arange(13) / 3.0)[:, None] * jnp.asarray([[0.0, 0.0, 1.0]]))
+    angle = 0.5 * jnp.sin(jnp.arange(13) / 3.0)[:, None]
+    wave = jaxanim.rotations.rotvec_to_quat(angle * jnp.asarray([[0.0, 0.0, 1.0]]))
     motion = jaxanim.Motion(rest.rotations.at[:, skel.index("arm")].set(wave), rest.translations, 1 / 30)
     ref = tracking.tracking_reference(char, motion)
     opts = tracking.tracking_options(char, 1 / 30, 8)
@@ -97,7 +98,8 @@ def test_search_is_deterministic_and_vmap_over_seeds_equals_a_loop():
     again = tracking.samcon(char, ref, keys[0], opts)
     np.testing.assert_array_equal(np.asarray(again.corrections), np.asarray(loop[0].corrections))  # deterministic
     for i, one in enumerate(loop):
-        np.testing.assert_allclose(np.asarray(batched.corrections[i]), np.asarray(one.corrections), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(batched.corrections[i]), np.asarray(one.corrections),
+                                   rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(np.asarray(batched.window_cost[i]), np.asarray(one.window_cost), rtol=1e-9)
     assert not np.array_equal(np.asarray(loop[1].corrections), np.asarray(loop[0].corrections))
 

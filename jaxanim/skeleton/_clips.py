@@ -41,6 +41,10 @@ def resample_at(motion: Motion, frames: Float[Array, " n"]) -> Motion:
     return Motion(q, t, motion.frame_time)
 
 
+# one program per clip shape (op by op, each of its ~50 ops compiled for every new shape)
+_resample_at_jit = eqx.filter_jit(resample_at)
+
+
 def resample(motion: Motion, frame_time: float | None = None, *, fps: float | None = None) -> Motion:
     """Resample a clip to a new frame rate (slerp for rotations, lerp for translations).
 
@@ -68,10 +72,6 @@ def resample(motion: Motion, frame_time: float | None = None, *, fps: float | No
     frames = np.arange(n, dtype=np.float64) * ratio
     out = _resample_at_jit(motion, jnp.asarray(frames, dtype=motion.rotations.dtype))
     return Motion(out.rotations, out.translations, jnp.asarray(new_dt, dtype=motion.rotations.dtype))
-
-
-# one program per clip shape (op by op, each of its ~50 ops compiled for every new shape)
-_resample_at_jit = eqx.filter_jit(resample_at)
 
 
 def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
