@@ -293,20 +293,36 @@ class _PanelArtist:
 
 
 def _gif_writer(animation):
-    """matplotlib's PillowWriter with GIF frame durations that keep time.
+    """A GIF writer on matplotlib's public movie-writer interface, with frame durations that keep time.
 
-    GIF counts frame durations in whole centiseconds, and PillowWriter gives every frame
+    GIF counts frame durations in whole centiseconds, and matplotlib's PillowWriter gives every frame
     ``int(1000 / fps)`` ms, which the file stores rounded down (30 fps: 30 ms, played 10 % fast).
     Here frame ``k`` ends at ``round((k + 1) * 100 / fps)`` centiseconds, so the durations
     alternate (30 fps: 30, 40, 30 ms, ...) and add up to the clip's duration (at least 10 ms each,
-    so above 100 fps a GIF runs slow).
+    so above 100 fps a GIF runs slow). The frames are grabbed as RGBA (as PillowWriter does) into
+    this writer's own list, and written with one shared palette by Pillow.
     """
+    import io
 
     from PIL import Image
 
-    class _GifWriter(animation.PillowWriter):
+    class _GifWriter(animation.AbstractMovieWriter):
+        @classmethod
+        def isAvailable(cls):
+            return True
+
+        def setup(self, fig, outfile, dpi=None):
+            super().setup(fig, outfile, dpi=dpi)
+            self._rgb = []
+
+        def grab_frame(self, **savefig_kwargs):
+            buf = io.BytesIO()
+            self.fig.savefig(buf, **{**savefig_kwargs, "format": "rgba", "dpi": self.dpi})
+            rgba = Image.frombuffer("RGBA", self.frame_size, buf.getbuffer(), "raw", "RGBA", 0, 1)
+            self._rgb.append(rgba.convert("RGB"))
+
         def finish(self):
-            rgb = [f.convert("RGB") for f in self._frames]  # PillowWriter's grabbed frames (matplotlib >= 3.1)
+            rgb = self._rgb
             # one palette for every frame, from up to 8 of them, and no dithering: what does not move
             # keeps its pixels (a palette per frame makes still parts flicker)
             pick = rgb[:: max(1, len(rgb) // 8)]
