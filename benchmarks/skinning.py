@@ -14,6 +14,8 @@ import numpy as np
 
 from jaxanim import default_clip_path, read_bvh, skinning
 from jaxanim.app._simulate import _looped_motion
+from jaxanim.rotations._numpy import quat_mul as _qmul
+from jaxanim.rotations._numpy import quat_to_matrix as _qmat
 from jaxanim.skinning._mesh import bone_segments
 from jaxanim.skinning._skin import _frames_args, _frames_kernel
 
@@ -38,21 +40,6 @@ class SkinningSizes:
 # ------------------------------------------------------------------------------------------------
 # NumPy peers: FK in quaternions, skinning vectorised over vertices and a chunk of frames
 # ------------------------------------------------------------------------------------------------
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _qmat(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1
-                    ).reshape(q.shape[:-1] + (3, 3))
 
 
 def _numpy_transforms(parents, offsets, rotations, translations):

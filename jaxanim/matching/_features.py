@@ -39,6 +39,9 @@ import numpy as np
 from .._errors import JaxanimError
 from ..kinematics._fk import forward_kinematics
 from ..skeleton._skeleton import Motion, Skeleton
+from ..rotations._numpy import quat_conj as _quat_conj
+from ..rotations._numpy import quat_log as _quat_log
+from ..rotations._numpy import quat_mul as _quat_mul
 from ..skeleton._processing import facing_frame
 
 __all__ = ["FeatureOptions", "FeatureWeights", "FeatureLayout", "clip_features", "detect_feet", "detect_hands",
@@ -220,27 +223,6 @@ def _rotate_y(yaw: np.ndarray, v: np.ndarray) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     return np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _quat_conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def _quat_log(q: np.ndarray) -> np.ndarray:
-    """Rotation vector of unit quaternions (shortest arc)."""
-    q = np.where(q[..., :1] < 0, -q, q)
-    v = q[..., 1:]
-    s = np.linalg.norm(v, axis=-1, keepdims=True)
-    angle = 2.0 * np.arctan2(s, q[..., :1])
-    scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0)
-    return v * scale
 
 
 def _gradient(x: np.ndarray, dt: float) -> np.ndarray:

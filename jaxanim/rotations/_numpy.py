@@ -1,0 +1,38 @@
+"""Host-side NumPy kernels on wxyz quaternions, for preprocessing that runs once outside JAX (the
+matching database's features) and for the benchmarks' NumPy peers. Same conventions as the JAX
+kernels (:mod:`jaxanim.rotations._base`); no input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The Hamilton product ``a b`` of ``[..., 4]`` quaternions."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_log(q: np.ndarray) -> np.ndarray:
+    """Rotation vector of unit quaternions (shortest arc)."""
+    q = np.where(q[..., :1] < 0, -q, q)
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0)
+    return v * scale
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """``[..., 3, 3]`` rotation matrices of unit quaternions."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1
+                    ).reshape(q.shape[:-1] + (3, 3))
