@@ -393,6 +393,26 @@ def test_mirror_reflects_fk(walk, mirrored):
         assert_close(f"M R M, axis {ax}", _R(rule).as_matrix(), Mx @ _R(q).as_matrix() @ Mx, atol=_ATOL)
 
 
+def test_transition_loop_and_mirror_vmap_equal_loops(walk, mirrored):
+    """The processing functions under ``jax.vmap`` over a batch of clips (frames and windows stay
+    static Python ints): the same as one call per clip. One jitted program for all three."""
+    skel, m = walk
+    clips = [_turn(m, y, [y, 0.0, 2.0 * y]) for y in (0.4, -1.3)]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *clips)
+
+    @jax.jit
+    @jax.vmap
+    def batched(b):
+        return transition(mirrored, b, _FA, _FB, _W), make_loop(b), mirror(b, skel)
+
+    out = batched(stacked)
+    for i, c in enumerate(clips):
+        for name, got, one in zip(("transition", "make_loop", "mirror"), out,
+                                  (transition(mirrored, c, _FA, _FB, _W), make_loop(c), mirror(c, skel))):
+            assert_close(f"{name}[{i}] rotations", got.rotations[i], one.rotations, atol=1e-13)
+            assert_close(f"{name}[{i}] translations", got.translations[i], one.translations, atol=1e-13)
+
+
 def test_mirror_needs_a_symmetric_skeleton(shared_data):
     skel, m = read_bvh(shared_data / "bvh" / "cmu_01_01_trim300.bvh")
     with pytest.raises(JaxanimError, match="do not mirror their partners'.*'LeftLeg'.*check=False"):
