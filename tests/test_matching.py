@@ -10,6 +10,7 @@ NumPy forward kinematics and finite differences written here.
 from __future__ import annotations
 
 import json
+import re
 
 import jax
 import jax.numpy as jnp
@@ -336,6 +337,18 @@ def test_vmap_over_agents_equals_a_loop(db):
                                    atol=1e-12, err_msg=f"rotations, agent {k}")
         np.testing.assert_allclose(np.asarray(batched.motion.translations[k]), np.asarray(one.motion.translations),
                                    atol=1e-12, err_msg=f"translations, agent {k}")
+
+
+def test_check_input_speed_reports_an_input_faster_than_the_database(walk, db):
+    _, motion = walk
+    step = np.linalg.norm(np.diff(np.asarray(motion.translations[:, 0])[:, [0, 2]], axis=0), axis=1)
+    clip_fastest = step.max() / float(motion.frame_time)  # the root's ground speed, from the clip itself
+    assert matching.check_input_speed(db, _constant(1.2, 0.4)) is None
+    fast = 3.0 * clip_fastest
+    message = matching.check_input_speed(db, matching.control_input([0.0, 2.0], [[0.0, 0.5], [fast, 0.0]]))
+    assert message is not None and f"{fast:.3g} per s (at t = 2 s)" in message, message
+    db_fastest = float(re.search(r"fastest frames move at ([0-9.e+-]+) per s", message).group(1))
+    assert np.median(step) / float(motion.frame_time) < db_fastest <= clip_fastest * (1 + 5e-3)  # 3 digits
 
 
 # --- the command line ---------------------------------------------------------------------------------

@@ -46,6 +46,9 @@ class _UI:
     def output(self, message: str) -> None:
         print(message, flush=True)
 
+    def warning(self, message: str) -> None:
+        print(f"{_PROG}: warning: {message}", file=sys.stderr, flush=True)
+
     def error(self, message: str) -> None:
         print(f"error: {message}", file=sys.stderr, flush=True)
 

@@ -105,6 +105,9 @@ def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
     db = matching.build_database(motions, first.skeleton, mirror=args.mirror, mirror_check=False,
                                  skeletons=[c.skeleton for c in clips], sources=[c.label for c in clips])
     build_seconds = time.perf_counter() - t0
+    too_fast = matching.check_input_speed(db, inputs)
+    if too_fast:
+        ui.warning(f"{args.input}: {too_fast}")
     frames = int(round(args.seconds / dt)) + 1
     ui.progress(f"matching {_num((frames - 1) * dt)} s: {frames} frames, database of {db.num_rows} frames "
                 f"({int(np.sum(np.asarray(db.searchable)))} searchable), {db.num_features} features")

@@ -21,6 +21,7 @@ from ._controller import (
     ControlInput as ControlInput,
     ControllerOptions as ControllerOptions,
     MatchResult as MatchResult,
+    check_input_speed as check_input_speed,
     control_input as control_input,
     motion_matching as motion_matching,
 )

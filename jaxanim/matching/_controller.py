@@ -424,6 +424,38 @@ def _run(db: MatchingDatabase, inputs: ControlInput, num_frames: int, start_posi
 _run_jit = eqx.filter_jit(_run)
 
 
+def check_input_speed(db: MatchingDatabase, inputs: ControlInput, *, slack: float = 1.25) -> str | None:
+    """Whether the database can follow the input's speeds: a message when it cannot, else ``None``.
+
+    Motion matching only replays the database's frames, so an input faster than its fastest
+    searchable frame is followed at that speed at best (plus what the trajectory adjustment adds,
+    ``adjust_speed_ratio``, by sliding the feet), and the character falls behind. The
+    database's fastest is the largest ground step of a searchable row per frame time; the input's
+    peak is the largest ``|velocity|`` of its keys (it is linear between them). Host-side: needs
+    concrete arrays (not inside ``jit`` / ``vmap``).
+
+    Args:
+        db: the database.
+        inputs: the input (:func:`control_input`).
+        slack: how much faster than the database's fastest frame the input may ask before this
+            reports (default 1.25: the controller's spring and the blend make up a little).
+
+    Returns:
+        ``None``, or a sentence naming the input's peak speed, when it is asked, and the database's fastest.
+    """
+    searchable = np.asarray(db.searchable)
+    steps = np.asarray(db.step_position)[searchable][:, [0, 2]]
+    fastest = float(np.linalg.norm(steps, axis=1).max(initial=0.0)) / float(db.frame_time)
+    speed = np.linalg.norm(np.asarray(inputs.velocity), axis=1)
+    k = int(np.argmax(speed))
+    if speed[k] <= slack * fastest:
+        return None
+    return (f"the input asks for a ground speed of {speed[k]:.3g} per s (at t = {float(np.asarray(inputs.times)[k]):g} s), "
+            f"but the database's fastest frames move at {fastest:.3g} per s: the character falls behind the "
+            f"input, and its feet slide where the trajectory adjustment pulls it on (add faster clips, or slow "
+            f"the input down)")
+
+
 def motion_matching(
     db: MatchingDatabase,
     inputs: ControlInput,
