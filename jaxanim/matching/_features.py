@@ -38,11 +38,11 @@ import numpy as np
 
 from .._errors import JaxanimError
 from ..kinematics._fk import forward_kinematics
-from ..skeleton._skeleton import Motion, Skeleton
 from ..rotations._numpy import quat_conj as _quat_conj
 from ..rotations._numpy import quat_log as _quat_log
 from ..rotations._numpy import quat_mul as _quat_mul
 from ..skeleton._processing import facing_frame
+from ..skeleton._skeleton import Motion, Skeleton
 
 __all__ = ["FeatureOptions", "FeatureWeights", "FeatureLayout", "clip_features", "detect_feet", "detect_hands",
            "yaw_of"]
