@@ -366,11 +366,26 @@ def test_match_command(tmp_path, capsys):
     inp.write_text(json.dumps({"velocity": [[0, *v], [SECONDS, *v]]}))
     out = tmp_path / "out.bvh"
     walk = jaxanim.default_clip_path()
-    code, stdout, stderr = _run(capsys, "match", walk, "--input", inp, "--seconds", SECONDS, "--out", out, "--mirror")
+    code, stdout, stderr = _run(capsys, "match", walk, "--input", inp, "--seconds", SECONDS, "--out", out, "--mirror",
+                                "--clean-feet")
     assert code == 0, stderr
-    assert "wrote" in stdout and "searches" in stdout
+    assert "wrote" in stdout and "searches" in stdout and "warning" not in stderr
+    # --clean-feet: the stance feet, which the trajectory adjustment slides, are planted by the IK
+    planted = re.search(r"feet planted \(LeftToeBase, RightToeBase\): on the ground in (\d+) % of foot-frames, where "
+                        r"their median speed went from ([0-9.e+-]+) to ([0-9.e+-]+) per s; the IK met its targets in "
+                        r"(\d+)/301 frames", stdout)
+    assert planted, stdout
+    share, before, after, met = int(planted[1]), float(planted[2]), float(planted[3]), int(planted[4])
+    assert 30 <= share <= 70 and before > 0.02 and after < 0.01 * before and met == FRAMES
     skel, motion = jaxanim.read_bvh(out)[:2]
     assert motion.num_frames == FRAMES and skel.num_joints == 21 and abs(float(motion.frame_time) - 1 / 30) < 1e-9
+    # the written file's feet, measured again from it: where a foot is on the ground at both ends of a
+    # frame step (the cleanup's own detection on the written clip) it moves less than 1 mm per s
+    feet, on = jaxanim.ik.detect_foot_contacts(skel, motion)
+    p = np.asarray(jax.vmap(lambda q, t: jaxanim.forward_kinematics(skel, q, t).positions)(
+        motion.rotations, motion.translations))[:, [skel.index(f) for f in feet]][..., [0, 2]]
+    speed = np.linalg.norm(np.diff(p, axis=0), axis=-1) * 30.0
+    assert np.median(speed[on[1:] & on[:-1]]) < 1e-3
 
     def bad(name, content):
         p = tmp_path / name

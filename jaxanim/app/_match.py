@@ -13,6 +13,7 @@ import jax
 import numpy as np
 
 from .._errors import JaxanimError
+from ..ik._contacts import _clip_positions, clean_foot_contacts
 from ..skeleton._bvh import write_bvh
 from ..skeleton._clips import resample
 from ._common import _UI, _duration, _load, _num
@@ -83,6 +84,17 @@ def read_input(path: str, dtype=None):
     return control_input(times, v, np.stack([np.sin(yaw), np.cos(yaw)], axis=1), dtype=dtype)
 
 
+def _stance_speed(skeleton, motion, cleaned) -> float:
+    """Median ground speed (file units per s) of the feet of ``cleaned`` over the frame steps where
+    the foot is on the ground at both ends (0 without any)."""
+    idx = [skeleton.index(f) for f in cleaned.feet]
+    P = np.asarray(_clip_positions(skeleton, motion))[:, idx][..., [0, 2]]
+    v = np.linalg.norm(np.diff(P, axis=0), axis=-1) / float(motion.frame_time)
+    c = np.asarray(cleaned.contacts)
+    both = c[1:] & c[:-1]
+    return float(np.median(v[both])) if both.any() else 0.0
+
+
 def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
     from .. import matching
 
@@ -114,7 +126,15 @@ def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
     t0 = time.perf_counter()
     result = jax.block_until_ready(matching.motion_matching(db, inputs, frames))
     seconds = time.perf_counter() - t0
-    write_bvh(args.out, first.skeleton, result.motion)
+    out_motion, planted = result.motion, None
+    if args.clean_feet:
+        ui.progress("planting the feet: IK foot-contact cleanup (ik.clean_foot_contacts)")
+        t1 = time.perf_counter()
+        cleaned = clean_foot_contacts(first.skeleton, result.motion)
+        out_motion = jax.block_until_ready(cleaned.motion)
+        planted = (_stance_speed(first.skeleton, result.motion, cleaned), _stance_speed(first.skeleton, out_motion, cleaned),
+                   cleaned, time.perf_counter() - t1)
+    write_bvh(args.out, first.skeleton, out_motion)
     root = np.asarray(result.motion.translations[:, 0])
     span = (frames - 1) * dt
     moved = root[-1, [0, 2]] - root[0, [0, 2]]
@@ -127,6 +147,13 @@ def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
         + (f", asked {np.linalg.norm(want):.3f})" if want is not None else ")"),
         f"time: database {_duration(build_seconds)}, matching {_duration(seconds)} (compile included)",
     ]
+    if planted is not None:
+        before, after, cleaned, clean_seconds = planted
+        contacts = np.asarray(cleaned.contacts)
+        lines.append(f"feet planted ({', '.join(cleaned.feet)}): on the ground in {100 * contacts.mean():.0f} % of "
+                     f"foot-frames, where their median speed went from {before:.3g} to {after:.3g} per s; the IK met "
+                     f"its targets in {int(np.sum(np.asarray(cleaned.success)))}/{frames} frames "
+                     f"({_duration(clean_seconds)}, compile included)")
     ui.result("\n".join(lines))
     return 0
 
@@ -147,4 +174,8 @@ def add_match_parser(sub, common) -> None:
     p.add_argument("--mirror", action="store_true",
                    help="add the clips' mirror images (left and right swapped by joint name; a skeleton whose two "
                         "sides differ a little, as CMU's, is mirrored anyway)")
+    p.add_argument("--clean-feet", action="store_true",
+                   help="plant the feet afterwards with the IK foot-contact cleanup (ik.clean_foot_contacts): a foot "
+                        "on the ground stays where it landed, so the trajectory adjustment no longer slides it; "
+                        "prints the stance feet's median speed before and after")
     p.set_defaults(func=_cmd_match)
