@@ -15,6 +15,18 @@ import tempfile
 if "--xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):  # xdist workers inherit it
     os.environ["XLA_FLAGS"] = " ".join(filter(None, (os.environ.get("XLA_FLAGS"), "--xla_cpu_use_fusion_emitters=false")))
 
+# Each xdist worker runs on a core of its own. XLA:CPU sizes its thread pools (run time and
+# parallel LLVM codegen) by the cores a process may use, so two workers on two shared cores ran four
+# pools that waited on each other; pinned, each worker's XLA works on one core. Measured on 2 cores,
+# test_tracking + test_balance + test_ik + test_least_squares, interleaved: 290 and 300 s shared,
+# 234 and 224 s pinned. Skipped where there are fewer cores than workers, or with
+# JAXANIM_TEST_NO_PIN=1.
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if _WORKER.startswith("gw") and not os.environ.get("JAXANIM_TEST_NO_PIN") and hasattr(os, "sched_setaffinity"):
+    _cpus = sorted(os.sched_getaffinity(0))
+    if len(_cpus) >= int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")):
+        os.sched_setaffinity(0, {_cpus[int(_WORKER[2:]) % len(_cpus)]})
+
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
