@@ -126,15 +126,13 @@ def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
     t0 = time.perf_counter()
     result = jax.block_until_ready(matching.motion_matching(db, inputs, frames))
     seconds = time.perf_counter() - t0
-    out_motion, planted = result.motion, None
+    cleaned = None
     if args.clean_feet:
         ui.progress("planting the feet: IK foot-contact cleanup (ik.clean_foot_contacts)")
         t1 = time.perf_counter()
-        cleaned = clean_foot_contacts(first.skeleton, result.motion)
-        out_motion = jax.block_until_ready(cleaned.motion)
-        planted = (_stance_speed(first.skeleton, result.motion, cleaned), _stance_speed(first.skeleton, out_motion, cleaned),
-                   cleaned, time.perf_counter() - t1)
-    write_bvh(args.out, first.skeleton, out_motion)
+        cleaned = jax.block_until_ready(clean_foot_contacts(first.skeleton, result.motion))
+        clean_seconds = time.perf_counter() - t1
+    write_bvh(args.out, first.skeleton, result.motion if cleaned is None else cleaned.motion)
     root = np.asarray(result.motion.translations[:, 0])
     span = (frames - 1) * dt
     moved = root[-1, [0, 2]] - root[0, [0, 2]]
@@ -147,8 +145,9 @@ def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
         + (f", asked {np.linalg.norm(want):.3f})" if want is not None else ")"),
         f"time: database {_duration(build_seconds)}, matching {_duration(seconds)} (compile included)",
     ]
-    if planted is not None:
-        before, after, cleaned, clean_seconds = planted
+    if cleaned is not None:
+        before = _stance_speed(first.skeleton, result.motion, cleaned)
+        after = _stance_speed(first.skeleton, cleaned.motion, cleaned)
         contacts = np.asarray(cleaned.contacts)
         lines.append(f"feet planted ({', '.join(cleaned.feet)}): on the ground in {100 * contacts.mean():.0f} % of "
                      f"foot-frames, where their median speed went from {before:.3g} to {after:.3g} per s; the IK met "
