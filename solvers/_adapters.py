@@ -75,6 +75,15 @@ class _OptxLoop(eqx.Module):
     user: Bool[Array, ""]  # the user's stop holds at y
 
 
+def _scalar_as(dtype):
+    """Cast a floating scalar array to ``dtype`` (other leaves unchanged)."""
+
+    def cast(a):
+        return a.astype(dtype) if a.ndim == 0 and jnp.issubdtype(a.dtype, jnp.floating) else a
+
+    return cast
+
+
 def _optx_primal(inputs):
     """optimistix's ``_iterate`` (``optimistix/_iterate.py``, 0.1.0) on :func:`solvers._iterate.iterate`.
 
@@ -90,6 +99,10 @@ def _optx_primal(inputs):
     f_struct, aux_struct = f_struct.value, aux_struct.value
     state0 = solver.init(fn, y0, args, options, f_struct, aux_struct, tags)
     dynamic0, static = eqx.partition(state0, eqx.is_array)
+    # optimistix 0.1.0 starts its scalars (the trust region's step size, Dogleg's norms) as `jnp.array(0.0 or
+    # 1.0)`, float64 under x64, which then meet a float32 problem's residuals: they take y0's dtype here, and
+    # every step's state keeps the dtypes of the first
+    dynamic0 = jax.tree.map(_scalar_as(y0.dtype), dynamic0)
 
     def terminate(y, state):  # optimistix checks the iterate the step started from
         t, result = solver.terminate(fn, y, args, options, state, tags)
@@ -113,8 +126,9 @@ def _optx_primal(inputs):
         state = eqx.combine(static, c.state)
         y, new_state, _aux = solver.step(fn, c.y, args, options, state, tags)
         t, result = terminate(c.y, new_state)
+        new_dynamic = jax.tree.map(lambda a, a0: a.astype(a0.dtype), eqx.filter(new_state, eqx.is_array), dynamic0)
         return _OptxLoop(
-            y=y, state=eqx.filter(new_state, eqx.is_array), terminate=t, result=result, user=user_stop(y, new_state)
+            y=y, state=new_dynamic, terminate=t, result=result, user=user_stop(y, new_state)
         )
 
     def done(c: _OptxLoop):
@@ -164,9 +178,11 @@ class OptimistixSolver(_AbstractAdapter):
     optimistix would try next, ``damping`` is ``1 / trust-region step size`` for
     ``optx.LevenbergMarquardt`` (0 otherwise), and ``cost_history`` holds the initial cost then the
     final cost (intermediate costs are not reported by optimistix). Bounds are not supported.
-    Known limitation of optimistix 0.1.0: with ``jax_enable_x64`` on, ``optx.LevenbergMarquardt``
-    and ``optx.Dogleg`` fail to trace for a float32 ``y0`` (a float64 damping term meets float32
-    residuals); float32 works with x64 off. The adapter uses optimistix 0.1.0's internals
+    float32 works with x64 on or off: optimistix 0.1.0 starts its trust-region scalars as
+    ``jnp.array(1.0)``, float64 under x64, which ``optx.least_squares`` itself then cannot combine
+    with a float32 problem ("Vector and operator structures do not match"); the adapter gives the
+    solver state's floating scalars ``y0``'s dtype and keeps each step's state in the dtypes of
+    the first. The adapter uses optimistix 0.1.0's internals
     (``_iterate``'s loop, ``NoneAux``/``OutAsArray``, the Gauss-Newton state), so it follows that
     version.
 

@@ -578,10 +578,20 @@ _LINEAR_LM = eqx.filter_jit(lambda y0, args: least_squares(_linear_args, Levenbe
 
 
 @pytest.mark.parametrize(
-    "solver", [GaussNewton(), LevenbergMarquardt(fixed_steps=True, max_steps=40)], ids=["gn", "lm-fixed"]
+    "solver",
+    [
+        GaussNewton(),
+        LevenbergMarquardt(fixed_steps=True, max_steps=40),
+        # optimistix 0.1.0 starts its trust-region scalars in float64 under x64: the adapter casts them
+        OptimistixSolver(optx.LevenbergMarquardt(rtol=1e-5, atol=1e-7), max_steps=256),
+        OptimistixSolver(optx.Dogleg(rtol=1e-5, atol=1e-7), max_steps=256),
+        OptimistixSolver(optx.GaussNewton(rtol=1e-5, atol=1e-7), max_steps=256),
+    ],
+    ids=["gn", "lm-fixed", "optx-lm", "optx-dogleg", "optx-gn"],
 )
 @pytest.mark.parametrize("problem", ["rosenbrock", "expfit"])
 def test_float32_no_nan(problem, solver):
+    """float32 in, float32 out, with x64 on (as users mix): no NaN, the minimum to float32 accuracy."""
     p = PROBLEMS[problem]
     sol = least_squares(p.fn, solver, jnp.asarray(p.y0, jnp.float32))
     assert sol.value.dtype == jnp.float32
