@@ -12,6 +12,7 @@ from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from ._checks import _all_finite, _check_int
 from ._iterate import iterate
+from ._linalg import dot, matmul
 from ._ls_problem import _Problem
 from ._results import RESULTS, Solution
 
@@ -44,8 +45,8 @@ def _adapter_solution(
     value = jnp.where(ok, value, y0)
     r, J = problem.linearize(value, args)
     r0 = problem.residual(y0, args)
-    cost = 0.5 * (r @ r)
-    g = J.T @ r
+    cost = 0.5 * dot(r, r)
+    g = matmul(J.T, r)
     ok = ok & jnp.isfinite(cost) & _all_finite(g)
     result = RESULTS.where(ok, result, RESULTS.nonfinite)
 
@@ -53,7 +54,7 @@ def _adapter_solution(
         return jnp.where(jnp.isfinite(x), x, jnp.inf)
 
     cost = finite_or_inf(cost)
-    history = jnp.full((max_steps + 1,), cost).at[0].set(finite_or_inf(0.5 * (r0 @ r0)))
+    history = jnp.full((max_steps + 1,), cost).at[0].set(finite_or_inf(0.5 * dot(r0, r0)))
     stats = dict(
         num_steps=jnp.asarray(num_steps),
         cost=cost,
@@ -288,7 +289,8 @@ class JaxoptSolver(_AbstractAdapter):
     update. ``result`` is ``successful`` when jaxopt's criterion or the user's stop holds at the
     end, ``max_steps_reached`` otherwise and ``nonfinite`` if the value or cost is not finite (the
     value is then ``y0``). ``cost_history`` holds the initial and final costs only. Bounds are not
-    supported.
+    supported. jaxopt's products, which state no precision of their own, are traced at
+    ``HIGHEST`` (under ``jax.default_matmul_precision("highest")``; so are the residual's).
 
     Attributes:
         name: ``"LevenbergMarquardt"`` or ``"GaussNewton"`` (static).
@@ -310,6 +312,13 @@ class JaxoptSolver(_AbstractAdapter):
         _check_int("max_steps", self.max_steps, 1)
 
     def _solve(self, problem, y0, args):
+        # jaxopt 0.8.5's Levenberg-Marquardt states no precision on its products (J^T J, J^T r, the
+        # gain ratio): traced under this context they are HIGHEST, as the library's own (it also
+        # applies to a residual's products that state none)
+        with jax.default_matmul_precision("highest"):
+            return self._solve_highest(problem, y0, args)
+
+    def _solve_highest(self, problem, y0, args):
         jaxopt = _import_jaxopt()
         fn = problem.custom_jvp_residual()
         lm = self.name == "LevenbergMarquardt"

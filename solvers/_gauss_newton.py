@@ -11,6 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._checks import _all_finite, _check_int
+from ._linalg import dot, matmul
 from ._ls_base import (
     AbstractLeastSquaresSolver,
     _cost_change,
@@ -57,12 +58,12 @@ def _line_search_step(solver, problem, y, args, state, *, steepest: bool) -> tup
         y_t = problem.project(y + alpha * state.p)
         r_t, J_t = problem.linearize(y_t, args)
         finite = _all_finite(r_t, J_t)
-        slope = jnp.minimum(state.g @ (y_t - y), 0)
+        slope = jnp.minimum(dot(state.g, y_t - y), 0)
         dF = _cost_change(state.r, r_t)
         ok = finite & (dF <= _ARMIJO_C1 * slope)
         if steepest:
             flat = jnp.abs(dF) <= jnp.sqrt(jnp.finfo(y.dtype).eps) * state.cost
-            slope_t = (r_t @ J_t) @ (y_t - y)
+            slope_t = dot(matmul(r_t, J_t), y_t - y)
             ok = ok | (finite & flat & (slope < 0) & (slope_t <= (2 * _ARMIJO_C1 - 1) * slope))
         return y_t, r_t, J_t, ok | first, finite
 

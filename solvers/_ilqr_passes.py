@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from ._checks import _all_finite, _sym
-from ._linalg import cho_solve, cholesky, mm
+from ._linalg import cho_solve, cholesky, dot, matmul, mm
 
 Dynamics = Callable[[Float[Array, " n"], Float[Array, " m"], Int[Array, ""], Any], Float[Array, " n"]]
 StageCost = Callable[[Float[Array, " n"], Float[Array, " m"], Int[Array, ""], Any], Float[Array, ""]]
@@ -169,11 +169,11 @@ def _box_qp(H, g, lo, hi, max_iter: int = 32):
     m = g.shape[0]
     eye = jnp.eye(m, dtype=dtype)
     alphas = jnp.asarray(0.5, dtype) ** jnp.arange(24)
-    f = lambda k: 0.5 * (k @ (H @ k)) + g @ k  # noqa: E731
+    f = lambda k: 0.5 * dot(k, matmul(H, k)) + dot(g, k)  # noqa: E731
     tol = 64 * jnp.finfo(dtype).eps
 
     def free_of(k):
-        grad = g + H @ k
+        grad = g + matmul(H, k)
         clamped = ((k <= lo) & (grad > 0)) | ((k >= hi) & (grad < 0))
         return ~clamped, grad
 
@@ -193,7 +193,7 @@ def _box_qp(H, g, lo, hi, max_iter: int = 32):
         fk = f(k)
         cands = jnp.clip(k[None, :] + alphas[:, None] * d[None, :], lo[None, :], hi[None, :])
         fs = jax.vmap(f)(cands)
-        armijo = fs <= fk + 1e-4 * ((cands - k[None, :]) @ grad)
+        armijo = fs <= fk + 1e-4 * matmul(cands - k[None, :], grad)
         idx = jnp.argmax(armijo)
         k_new = jnp.where(jnp.any(armijo), cands[idx], k)
         scale = 1 + jnp.max(jnp.abs(g))

@@ -22,6 +22,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._linalg import matmul
+
 __all__ = ["attach_minimizer", "stop_gradient_arrays"]
 
 
@@ -57,5 +59,5 @@ def _attach_jvp(primals, tangents, *, objective):
         free = (y > lower) & (y < upper)
         H = jnp.where(free[:, None] & free[None, :], H, jnp.eye(y.shape[0], dtype=H.dtype))
         b = jnp.where(free, b, 0.0)
-    dy = -jnp.linalg.pinv(H, hermitian=True) @ b
+    dy = -matmul(jnp.linalg.pinv(H, hermitian=True), b)
     return y, dy

@@ -6,13 +6,37 @@ microsecond of dispatch on XLA:CPU, more than the arithmetic of a 2x2 or 4x4 sys
 and row-vector arithmetic (static Python loops), which XLA fuses; larger systems use
 ``jnp.linalg.cholesky`` / ``jax.scipy.linalg.cho_solve``. Both paths return NaN factors for a matrix
 that is not positive definite, like ``jnp.linalg.cholesky``.
+
+Every matrix product of the library states its precision: :data:`HIGHEST` unless a kernel takes a
+documented ``precision`` option. Without it an NVIDIA GPU runs a float32 ``dot`` in TF32 (about 10
+bits of mantissa), so float32 results would not be float32-accurate there. :func:`matmul`,
+:func:`einsum` and :func:`dot` are ``jnp``'s with that default.
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+from jax import lax
 from jaxtyping import Array, Float
+
+HIGHEST = lax.Precision.HIGHEST  # full float32 (or float64) accuracy on every backend: no TF32
+
+
+def matmul(a: Array, b: Array, *, precision=HIGHEST) -> Array:
+    """``jnp.matmul(a, b)`` (``a @ b``) at ``precision`` (default :data:`HIGHEST`)."""
+    return jnp.matmul(a, b, precision=precision)
+
+
+def dot(a: Array, b: Array, *, precision=HIGHEST) -> Array:
+    """``jnp.dot(a, b)`` at ``precision`` (default :data:`HIGHEST`)."""
+    return jnp.dot(a, b, precision=precision)
+
+
+def einsum(subscripts: str, *operands: Array, precision=HIGHEST) -> Array:
+    """``jnp.einsum(subscripts, *operands)`` at ``precision`` (default :data:`HIGHEST`)."""
+    return jnp.einsum(subscripts, *operands, precision=precision)
+
 
 UNROLL_MAX = 6
 
@@ -67,7 +91,7 @@ def mm(a: Float[Array, "p q"], b: Float[Array, "q ..."]) -> Float[Array, "p ..."
     """
     cols = 1 if b.ndim == 1 else b.shape[-1]
     if a.shape[0] * a.shape[1] * cols > EW_MAX:
-        return a @ b
+        return matmul(a, b)
     if b.ndim == 1:
         return jnp.sum(a * b[None, :], axis=1)
     return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)

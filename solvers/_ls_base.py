@@ -12,6 +12,7 @@ from jaxtyping import Array, Bool, Float, PyTree
 
 from ._checks import _all_finite
 from ._iterate import iterate
+from ._linalg import dot, matmul
 from ._ls_problem import _Problem
 from ._results import RESULTS, Solution
 
@@ -46,11 +47,11 @@ def _solve_normal(
     if short_fat:
         m = J.shape[0]
         JD = J if diag is None else J / diag[None, :]  # J D^{-1}
-        JDJ = JD @ J.T
+        JDJ = matmul(JD, J.T)
         B = JDJ + lam * jnp.eye(m, dtype=dtype)
         u = jsl.cho_solve((jnp.linalg.cholesky(B), True), r)
-        return -(JD.T @ u), jnp.trace(JDJ)
-    JJ = J.T @ J
+        return -matmul(JD.T, u), jnp.trace(JDJ)
+    JJ = matmul(J.T, J)
     curvature = jnp.diagonal(JJ)
     d = lam * jnp.ones_like(g) if diag is None else lam * diag
     if diag is not None:
@@ -73,15 +74,15 @@ def _cauchy_step(
     """
     positive = g_norm > 0
     d = g / jnp.where(positive, g_norm, 1)
-    Jd = J @ d
-    JdJd = Jd @ Jd
-    alpha = (d @ d) / jnp.where(positive, JdJd, 1)
+    Jd = matmul(J, d)
+    JdJd = dot(Jd, Jd)
+    alpha = dot(d, d) / jnp.where(positive, JdJd, 1)
     return jnp.where(positive, -alpha * g, 0)
 
 
 def _cost_change(r: Float[Array, " m"], r_new: Float[Array, " m"]) -> Float[Array, ""]:
     """``F(y_new) - F(y) = 0.5 (r_new - r) . (r_new + r)``, without the cancellation of ``F_new - F``."""
-    return 0.5 * ((r_new - r) @ (r_new + r))
+    return 0.5 * dot(r_new - r, r_new + r)
 
 
 class _State(eqx.Module):
@@ -147,8 +148,8 @@ def _model(
     The step solves the (damped) normal equations, or with ``steepest`` (static; ``lam`` must be
     0) is the Cauchy step :func:`_cauchy_step`, for which the damping condition is void.
     """
-    g = J.T @ r
-    cost = 0.5 * (r @ r)
+    g = matmul(J.T, r)
+    cost = 0.5 * dot(r, r)
     free = problem.free(y, g)
     g_free = g if free is None else jnp.where(free, g, 0)
     g_norm = jnp.max(jnp.abs(g_free))
@@ -161,12 +162,12 @@ def _model(
     y_trial = problem.project(y + p)
     s = y_trial - y
     if problem.bounded:  # the projected step: evaluate the model
-        Js = J @ s
-        pred = -(g @ s) - 0.5 * (Js @ Js)
+        Js = matmul(J, s)
+        pred = -dot(g, s) - 0.5 * dot(Js, Js)
     else:  # (J^T J + lam D) p = -g gives |J p|^2 = -g.p - lam p.D.p: no pass over J (for the
         # Cauchy step p = -alpha g, lam = 0: |J p|^2 = alpha^2 |J g|^2 = alpha |g|^2 = -g.p as well)
-        pDp = p @ p if diag is None else (p * diag) @ p
-        pred = 0.5 * (lam * pDp - g @ p)
+        pDp = dot(p, p) if diag is None else dot(p * diag, p)
+        pred = 0.5 * (lam * pDp - dot(g, p))
     small_step = jnp.all(jnp.abs(s) <= atol + rtol * jnp.abs(y))
     small_pred = pred <= atol + rtol * cost
     # A heavily damped step is short because of the damping, not because y is near a minimum:

@@ -10,6 +10,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, PyTree
 
+from ._linalg import matmul
+
 ResidualFn = Callable[[Float[Array, " n"], Any], Float[Array, " m"]]
 JacobianFn = Callable[[Float[Array, " n"], Any], Float[Array, "m n"]]
 
@@ -89,7 +91,7 @@ class _Problem(eqx.Module):
                 r = jnp.asarray(fn(y_, a))
                 out = jnp.zeros_like(r)
                 if not isinstance(t_y, jax.custom_derivatives.SymbolicZero):
-                    out = out + jnp.asarray(jac(y_, a)).astype(r.dtype) @ t_y.astype(r.dtype)
+                    out = out + matmul(jnp.asarray(jac(y_, a)).astype(r.dtype), t_y.astype(r.dtype))
                 t_leaves = jax.tree.leaves(t_dyn, is_leaf=lambda x: isinstance(x, jax.custom_derivatives.SymbolicZero))
                 if any(not isinstance(t, jax.custom_derivatives.SymbolicZero) for t in t_leaves):
                     t_dyn = jax.tree.map(

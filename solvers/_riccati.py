@@ -57,6 +57,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._checks import _all_finite, _amax, _as_float, _check_int, _check_shape, _common_dtype, _fmt, _sym
 from ._iterate import Iteration, iterate
+from ._linalg import matmul
 from ._results import RESULTS
 
 __all__ = ["RiccatiSolution", "care", "dare"]
@@ -130,12 +131,12 @@ def _sda(
     a_tol = jnp.sqrt(rtol)
 
     def advance(c: _Doubling) -> _Doubling:
-        W = eye + c.G @ c.H
+        W = eye + matmul(c.G, c.H)
         Z = jnp.linalg.solve(W, jnp.concatenate([c.A, c.G], axis=1))
         WA, WG = Z[:, :n], Z[:, n:]
-        A1 = c.A @ WA
-        G1 = _sym(c.G + c.A @ WG @ c.A.T)
-        dH = _sym(c.A.T @ (c.H @ WA))
+        A1 = matmul(c.A, WA)
+        G1 = _sym(c.G + matmul(matmul(c.A, WG), c.A.T))
+        dH = _sym(matmul(c.A.T, matmul(c.H, WA)))
         H1 = c.H + dH
         finite = _all_finite(A1, G1, H1)
         converged = finite & (_amax(dH) <= atol + rtol * _amax(H1)) & (_amax(A1) <= a_tol)
@@ -150,7 +151,7 @@ def _remove_cross_term(A, B, Q, R, S):
     L = jnp.linalg.cholesky(_sym(R))
     Bt = jsl.solve_triangular(L, B.T, lower=True).T  # B L^{-T}
     St = jsl.solve_triangular(L, S, lower=True)  # L^{-1} S
-    return A - Bt @ St, _sym(Bt @ Bt.T), _sym(Q - St.T @ St), L
+    return A - matmul(Bt, St), _sym(matmul(Bt, Bt.T)), _sym(Q - matmul(St.T, St)), L
 
 
 def _tolerances(rtol, atol, dtype):
@@ -195,9 +196,9 @@ def _stein_doubling(M: Float[Array, "n n"], E: Float[Array, "n n"]) -> Float[Arr
     eps = jnp.finfo(E.dtype).eps
 
     def body(c: _Smith) -> _Smith:
-        inc = c.Mk.T @ c.X @ c.Mk
+        inc = matmul(matmul(c.Mk.T, c.X), c.Mk)
         X = c.X + inc
-        Mk = c.Mk @ c.Mk
+        Mk = matmul(c.Mk, c.Mk)
         done = ((_amax(inc) <= eps * _amax(X)) & (_amax(Mk) <= jnp.sqrt(eps))) | jnp.invert(_all_finite(X, Mk))
         return _Smith(Mk=Mk, X=X, done=done)
 
@@ -222,18 +223,18 @@ def _closed_loop_solve(Acl: Float[Array, "n n"], E: Float[Array, "n n"], continu
         M = eye + 2 * g * C
 
         def matvec(X):
-            return -(Acl.T @ X + X @ Acl)
+            return -(matmul(Acl.T, X) + matmul(X, Acl))
 
         def solve(_, b):
-            return _stein_doubling(M, 2 * g * (C.T @ b @ C))
+            return _stein_doubling(M, 2 * g * matmul(matmul(C.T, b), C))
 
         def transpose_solve(_, b):  # the adjoint operator -(Acl Y + Y Acl')
-            return _stein_doubling(M.T, 2 * g * (C @ b @ C.T))
+            return _stein_doubling(M.T, 2 * g * matmul(matmul(C, b), C.T))
 
     else:
 
         def matvec(X):
-            return X - Acl.T @ X @ Acl
+            return X - matmul(matmul(Acl.T, X), Acl)
 
         def solve(_, b):
             return _stein_doubling(Acl, b)
@@ -262,16 +263,17 @@ def _make_implicit(continuous: bool):
         # is differentiated in turn (Hessians); at first order this is just P.
         P = attach(P, A, B, Q, R, S)
         if continuous:
-            K = jsl.cho_solve((jnp.linalg.cholesky(R), True), B.T @ P + S)
+            K = jsl.cho_solve((jnp.linalg.cholesky(R), True), matmul(B.T, P) + S)
         else:
-            K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + B.T @ P @ B)), True), B.T @ P @ A + S)
-        Acl = A - B @ K
-        dAcl = dA - dB @ K
-        E = dQ + K.T @ dR @ K - dS.T @ K - K.T @ dS
+            BP = matmul(B.T, P)
+            K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + matmul(BP, B))), True), matmul(BP, A) + S)
+        Acl = A - matmul(B, K)
+        dAcl = dA - matmul(dB, K)
+        E = dQ + matmul(matmul(K.T, dR), K) - matmul(dS.T, K) - matmul(K.T, dS)
         if continuous:
-            E = E + dAcl.T @ P + P @ dAcl
+            E = E + matmul(dAcl.T, P) + matmul(P, dAcl)
         else:
-            E = E + dAcl.T @ P @ Acl + Acl.T @ P @ dAcl
+            E = E + matmul(matmul(dAcl.T, P), Acl) + matmul(matmul(Acl.T, P), dAcl)
         dP = _sym(_closed_loop_solve(Acl, _sym(E), continuous))
         return P, dP
 
@@ -382,11 +384,11 @@ def _dare(A, B, Q, R, S, rtol, atol, max_steps, fixed_steps, throw) -> RiccatiSo
     At, G, Ht, _ = _remove_cross_term(sg(A), sg(B), sg(Q), sg(R), sg(S))
     it = _sda(At, G, Ht, rtol, atol, max_steps, fixed_steps)
     P = _implicit_discrete(sg(it.state.H), A, B, Q, R, S)
-    BP = B.T @ P
-    N = BP @ A + S  # B'PA + S
-    K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + BP @ B)), True), N)
-    APA = A.T @ P @ A
-    F = APA - P - N.T @ K + Q
+    BP = matmul(B.T, P)
+    N = matmul(BP, A) + S  # B'PA + S
+    K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + matmul(BP, B))), True), N)
+    APA = matmul(matmul(A.T, P), A)
+    F = APA - P - matmul(N.T, K) + Q
     residual = _amax(F)
     result = _riccati_result(P, K, it, residual, _amax(APA) + _amax(P) + _amax(Q))
     if throw:
@@ -471,19 +473,19 @@ def _care(A, B, Q, R, S, gamma, rtol, atol, max_steps, fixed_steps, throw) -> Ri
         g = jnp.asarray(gamma, dtype)
     Ag = At - g * eye
     AgiT_H = jnp.linalg.solve(Ag.T, Ht)  # Ag^{-T} H
-    W = Ag + G @ AgiT_H
+    W = Ag + matmul(G, AgiT_H)
     Agi_G = jnp.linalg.solve(Ag, G)  # Ag^{-1} G;  G Ag^{-T} = (Ag^{-1} G)'
     A_hat = eye + 2 * g * jnp.linalg.solve(W, eye)
     G_hat = _sym(2 * g * jnp.linalg.solve(W, Agi_G.T))
     H_hat = _sym(2 * g * jnp.linalg.solve(W.T, AgiT_H.T))  # H Ag^{-1} = (Ag^{-T} H)'
     it = _sda(A_hat, G_hat, H_hat, rtol, atol, max_steps, fixed_steps)
     P = _implicit_continuous(sg(it.state.H), A, B, Q, R, S)
-    N = B.T @ P + S
+    N = matmul(B.T, P) + S
     K = jsl.cho_solve((jnp.linalg.cholesky(R), True), N)
-    AP = A.T @ P
-    F = AP + AP.T - N.T @ K + Q
+    AP = matmul(A.T, P)
+    F = AP + AP.T - matmul(N.T, K) + Q
     residual = _amax(F)
-    result = _riccati_result(P, K, it, residual, 2 * _amax(AP) + _amax(N.T @ K) + _amax(Q))
+    result = _riccati_result(P, K, it, residual, 2 * _amax(AP) + _amax(matmul(N.T, K)) + _amax(Q))
     if throw:
         P = result.error_if(P, result != RESULTS.successful)
     stats = dict(num_steps=it.num_steps, residual=residual)

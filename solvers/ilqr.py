@@ -71,6 +71,7 @@ from ._checks import _all_finite, _as_float, _fmt
 from ._ilqr_passes import Dynamics, StageCost, TerminalCost, _Problem
 from ._implicit import attach_minimizer, stop_gradient_arrays
 from ._iterate import iterate
+from ._linalg import einsum
 from ._results import RESULTS
 
 __all__ = ["ILQROptions", "TrajectorySolution", "ddp", "ilqr"]
@@ -282,7 +283,7 @@ def _iteration(problem: _Problem, x0, args, rtol, atol, s: _State) -> _State:
     expected = jnp.where(ok, -(bw.dV1 + bw.dV2), 0)
     trusted = mu <= bw.curvature
     converged = (ok & trusted & (expected <= atol + rtol * jnp.abs(s.cost))) | (g_norm <= atol)
-    ks_abs = s.us + ks - jnp.einsum("tmn,tn->tm", Ks, s.xs[:-1])
+    ks_abs = s.us + ks - einsum("tmn,tn->tm", Ks, s.xs[:-1])
     accepted, xs_new, us_new, J, alpha = _line_search(problem, x0, s, Ks, ks, bw.dV1, bw.dV2, ok & ~converged, args)
 
     mu_dec, delta_dec = _decrease(mu, delta)

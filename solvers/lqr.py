@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ._checks import _all_finite, _as_float, _check_shape, _common_dtype, _fmt, _sym
-from ._linalg import cho_solve, cholesky, mm
+from ._linalg import cho_solve, cholesky, dot, einsum, matmul, mm
 from ._results import RESULTS
 
 __all__ = ["LQRSolution", "lqr"]
@@ -219,13 +219,13 @@ def _lqr(A, B, Q, R, QT, x0, S, q, r, qT, c, throw) -> LQRSolution:
     xs = jnp.concatenate([xs, xT[None]], axis=0)
     X = xs[:-1]
     cost = (
-        0.5 * jnp.einsum("ti,tij,tj->", X, Q, X)
-        + 0.5 * jnp.einsum("ti,tij,tj->", us, R, us)
-        + jnp.einsum("ti,tij,tj->", us, S, X)
+        0.5 * einsum("ti,tij,tj->", X, Q, X)
+        + 0.5 * einsum("ti,tij,tj->", us, R, us)
+        + einsum("ti,tij,tj->", us, S, X)
         + jnp.sum(q * X)
         + jnp.sum(r * us)
-        + 0.5 * (xT @ QT @ xT)
-        + qT @ xT
+        + 0.5 * dot(matmul(xT, QT), xT)
+        + dot(qT, xT)
     )
     good = jnp.all(ok) & _all_finite(Ks, ks, Ps, ps, xs, us, cost)
     result = RESULTS.where(good, RESULTS.successful, RESULTS.not_positive_definite)

@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from ._linalg import dot, matmul
 from .ilqr import TrajectorySolution, ddp, ilqr
 from .lqr import LQRSolution, lqr
 
@@ -139,12 +140,12 @@ def _rollout(problem: ControlProblem, x0, us):
 
 def _quadratic_cost(x, u, t, a):
     dx = x - a["goal"]
-    return 0.5 * (dx @ (a["Q"] * dx) + u @ (a["R"] * u))
+    return 0.5 * (dot(dx, a["Q"] * dx) + dot(u, a["R"] * u))
 
 
 def _quadratic_terminal(x, a):
     dx = x - a["goal"]
-    return 0.5 * dx @ (a["QT"] * dx)
+    return 0.5 * dot(dx, a["QT"] * dx)
 
 
 def _vector(name: str, value, size: int, dtype) -> Array:
@@ -446,15 +447,21 @@ class LQProblem(eqx.Module):
 
 
 def _lq_dynamics(x, u, t, a):
-    return a["A"][t] @ x + a["B"][t] @ u + a["c"][t]
+    return matmul(a["A"][t], x) + matmul(a["B"][t], u) + a["c"][t]
 
 
 def _lq_cost(x, u, t, a):
-    return 0.5 * x @ a["Q"][t] @ x + 0.5 * u @ a["R"][t] @ u + u @ a["S"][t] @ x + a["q"][t] @ x + a["r"][t] @ u
+    return (
+        0.5 * dot(matmul(x, a["Q"][t]), x)
+        + 0.5 * dot(matmul(u, a["R"][t]), u)
+        + dot(matmul(u, a["S"][t]), x)
+        + dot(a["q"][t], x)
+        + dot(a["r"][t], u)
+    )
 
 
 def _lq_terminal(x, a):
-    return 0.5 * x @ a["QT"] @ x + a["qT"] @ x + a["constant"]
+    return 0.5 * dot(matmul(x, a["QT"]), x) + dot(a["qT"], x) + a["constant"]
 
 
 def pd_servo_tracking(

@@ -61,6 +61,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import JaxanimError
 from .. import rotations as rot
 from ._build import Character, character_state, spd_targets
+from .._linalg import dot, matmul
 from ..physics._contact import _geometry, contact_points
 from ..kinematics._fk import forward_kinematics, global_to_local
 from ..physics._joints import Joints
@@ -115,7 +116,7 @@ support_centre = support_center  # the 0.1 spelling (jaxanim.balance.support_cen
 
 def _feet_center(state: BodyState, feet: tuple[int, ...], up: Array) -> Array:
     p = jnp.mean(state.position[np.asarray(feet)], axis=0)
-    return p - (p @ up) * up
+    return p - dot(p, up) * up
 
 
 def stance_leg_joints(
@@ -323,7 +324,7 @@ class BalanceController(eqx.Module):
         c, c_dot = bodies_center_of_mass(self.bodies, state)
         w = args["support_weight"]
         c_bar = w * _feet_center(state, self.feet, self.up) + (1.0 - w) * args["target"]
-        f = self.horizontal @ (args["balance_kp"] * (c_bar - c) - args["balance_kd"] * c_dot)
+        f = matmul(self.horizontal, args["balance_kp"] * (c_bar - c) - args["balance_kd"] * c_dot)
         norm = jnp.linalg.norm(f)
         f = f * jnp.minimum(1.0, args["max_force"] / jnp.maximum(norm, jnp.finfo(f.dtype).tiny))
         p_world = joint_anchors(self.joints, state)
@@ -494,5 +495,5 @@ def stood(
     bool; ``vmap`` it over a batch of rollouts."""
     up = jnp.asarray(_up(character.model.bodies), initial.position.dtype)
     c0, _ = bodies_center_of_mass(character.model.bodies, initial)
-    heights = jax.vmap(lambda s: bodies_center_of_mass(character.model.bodies, s)[0])(trajectory) @ up
-    return jnp.all(heights >= (1.0 - height_tolerance) * (c0 @ up))
+    heights = matmul(jax.vmap(lambda s: bodies_center_of_mass(character.model.bodies, s)[0])(trajectory), up)
+    return jnp.all(heights >= (1.0 - height_tolerance) * dot(c0, up))

@@ -39,6 +39,7 @@ from jaxtyping import Array, Float
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import einsum
 from ..kinematics._fk import forward_kinematics
 from ..physics._bodies import BodyState, RigidBodies, make_bodies, make_state, shape_mass_properties
 from ..physics._contact import Ground
@@ -329,7 +330,7 @@ def _character_state(character: Character, q, t, bodies: RigidBodies) -> BodySta
     fk = forward_kinematics(skel, q, t)
     bj = np.asarray(character.body_joint)
     R = fk.rotations[bj]
-    x = fk.positions[bj] * character.unit + jnp.einsum("bij,bj->bi", R, character.body_center)
+    x = fk.positions[bj] * character.unit + einsum("bij,bj->bi", R, character.body_center)
     orientation = rot.quat_multiply(rot.matrix_to_quat(R), character.body_rotation)
     return make_state(bodies, position=x, orientation=orientation)
 

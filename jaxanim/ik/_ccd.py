@@ -82,6 +82,7 @@ from solvers._iterate import iterate
 from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import einsum, matmul
 from .._types import Array, Bool, Float
 from ..kinematics._fk import FKResult, forward_kinematics
 from ._solve import IKSolution
@@ -154,7 +155,7 @@ def _wahba(B):
     U, _, Vt = jnp.linalg.svd(Bp)
     d = _det3(U) * _det3(Vt)
     m = jnp.stack([jnp.ones_like(d), jnp.ones_like(d), jnp.sign(d)], axis=-1)
-    return jnp.einsum("nab,nb,nbc->nac", U, m, Vt)
+    return einsum("nab,nb,nbc->nac", U, m, Vt)
 
 
 def _det3(M):
@@ -166,7 +167,7 @@ def _cross_covariance(x, R_s, x_goal, R_goal, piv, piv_goal, w_pos, w_ori):
     a = x - piv
     b = x_goal - piv_goal
     C = w_pos[:, None, None] * (b[:, :, None] * a[:, None, :])
-    return C + w_ori[:, None, None] * jnp.einsum("sab,scb->sac", R_goal, R_s)
+    return C + w_ori[:, None, None] * einsum("sab,scb->sac", R_goal, R_s)
 
 
 # --- one sweep and the objective ----------------------------------------------------------------
@@ -182,7 +183,7 @@ def _sweep(skeleton, plan, out, R_local, t, x, R_s, x_goal, R_goal, w_pos, w_ori
     W = jnp.sum(w_pos)
     has_w = W > 0
     W = jnp.where(has_w, W, 1.0)
-    c_goal = jnp.where(has_w, jnp.einsum("s,sa->a", w_pos, x_goal) / W, p0)
+    c_goal = jnp.where(has_w, einsum("s,sa->a", w_pos, x_goal) / W, p0)
     S = x.shape[0]
 
     def level(carry, xs):
@@ -190,14 +191,14 @@ def _sweep(skeleton, plan, out, R_local, t, x, R_s, x_goal, R_goal, w_pos, w_ori
         piv, sel, which, root = xs  # [width, 3], [width, S], [S], scalar bool
         moved = which < plan.width
         p = jnp.concatenate([piv, jnp.zeros((1, 3), dtype)], axis=0)[which]  # [S, 3] pivot per site
-        c = jnp.where(has_w, jnp.einsum("s,sa->a", w_pos, x) / W, p0)
+        c = jnp.where(has_w, einsum("s,sa->a", w_pos, x) / W, p0)
         p_goal = jnp.where(root, jnp.broadcast_to(c_goal, (S, 3)), p)
         p = jnp.where(root, jnp.broadcast_to(c, (S, 3)), p)
         C = _cross_covariance(x, R_s, x_goal, R_goal, p, p_goal, w_pos, w_ori_half)
-        dR = _wahba(jnp.einsum("ns,sab->nab", sel, C))
+        dR = _wahba(einsum("ns,sab->nab", sel, C))
         dR_s = jnp.concatenate([dR, eye[None]], axis=0)[which]
-        x = jnp.where(moved[:, None], p_goal + jnp.einsum("sab,sb->sa", dR_s, x - p), x)
-        R_s = jnp.einsum("sab,sbc->sac", dR_s, R_s)
+        x = jnp.where(moved[:, None], p_goal + einsum("sab,sb->sa", dR_s, x - p), x)
+        R_s = einsum("sab,sbc->sac", dR_s, R_s)
         return (x, R_s), (dR, c)
 
     if plan.num_levels:
@@ -211,20 +212,20 @@ def _sweep(skeleton, plan, out, R_local, t, x, R_s, x_goal, R_goal, w_pos, w_ori
     if plan.free_root:
         if plan.root_active:
             lev, k = plan.slot[0]
-            t = t.at[0].set(c_goal + dRs[lev, k] @ (p0 - cs[lev]))
+            t = t.at[0].set(c_goal + matmul(dRs[lev, k], p0 - cs[lev]))
         else:
-            t = t.at[0].add(c_goal - jnp.where(has_w, jnp.einsum("s,sa->a", w_pos, x) / W, p0))
+            t = t.at[0].add(c_goal - jnp.where(has_w, einsum("s,sa->a", w_pos, x) / W, p0))
     # new local rotations of the visited joints: Q_parent^T dR Q_j (all from the sweep's FK)
     if plan.active:
         act = np.asarray(plan.active, dtype=np.int64)
         Q = out.rotations[act]
         Q_par = jnp.concatenate([eye[None], out.rotations], axis=0)[np.asarray(plan.parents_of_active) + 1]
         lev, k = (np.asarray(v) for v in zip(*(plan.slot[j] for j in plan.active)))
-        R_new = jnp.einsum("nba,nbc,ncd->nad", Q_par, dRs[lev, k], Q)
+        R_new = einsum("nba,nbc,ncd->nad", Q_par, dRs[lev, k], Q)
         # Q_par^T is the inverse only up to rounding, and the error would compound over sweeps
         # (x6 per sweep on a 31-joint tree): one Newton step of the polar decomposition keeps the
         # local matrices orthogonal to machine precision.
-        R_new = 1.5 * R_new - 0.5 * jnp.einsum("nab,ncb,ncd->nad", R_new, R_new, R_new)
+        R_new = 1.5 * R_new - 0.5 * einsum("nab,ncb,ncd->nad", R_new, R_new, R_new)
         R_local = R_local.at[act].set(R_new)
     return R_local, t
 
@@ -232,7 +233,7 @@ def _sweep(skeleton, plan, out, R_local, t, x, R_s, x_goal, R_goal, w_pos, w_ori
 def _evaluate(x, R_s, x_goal, R_goal, w, has_pos, has_ori, scale2):
     """Reported cost, sweep objective ``G`` and per-target errors of the sites ``x``, ``R_s``."""
     pe = jnp.where(has_pos, jnp.sqrt(jnp.sum((x - x_goal) ** 2, axis=-1)), 0.0)
-    E = jnp.einsum("sab,scb->sac", R_s, R_goal)  # R_s R~^T: the world-frame orientation error
+    E = einsum("sab,scb->sac", R_s, R_goal)  # R_s R~^T: the world-frame orientation error
     cos = 0.5 * (E[:, 0, 0] + E[:, 1, 1] + E[:, 2, 2] - 1.0)
     sin = 0.5 * jnp.sqrt(
         (E[:, 2, 1] - E[:, 1, 2]) ** 2 + (E[:, 0, 2] - E[:, 2, 0]) ** 2 + (E[:, 1, 0] - E[:, 0, 1]) ** 2

@@ -37,6 +37,7 @@ import numpy as np
 
 from .. import rotations as rot
 from .._errors import JaxanimError
+from .._linalg import einsum, matmul
 from .._types import Array
 from ..kinematics._fk import forward_kinematics
 from ..kinematics._jacobians import _jacobian_from_fk
@@ -55,7 +56,7 @@ def _left_jacobian(phi):
     b = jnp.where(small, 1.0 / 6.0 - th2 / 120.0, (th - jnp.sin(th)) / (th2s * th))
     K = rot.skew(phi)
     eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), K.shape)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return eye + a[..., None, None] * K + b[..., None, None] * matmul(K, K)
 
 
 def _left_jacobian_inverse(phi):
@@ -67,7 +68,7 @@ def _left_jacobian_inverse(phi):
     c = jnp.where(small, 1.0 / 12.0 + th2 / 720.0, (1.0 / th2s) - (1.0 + jnp.cos(th)) / (2.0 * th * jnp.sin(th)))
     K = rot.skew(phi)
     eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), K.shape)
-    return eye - 0.5 * K + c[..., None, None] * (K @ K)
+    return eye - 0.5 * K + c[..., None, None] * matmul(K, K)
 
 
 # --- static layout --------------------------------------------------------------------------------
@@ -293,8 +294,8 @@ def _regularization_rows(layout, blocks, q, q_ref, E, reg_w, n, dtype):
         js = jnp.asarray([layout.free_joints[k] for k in layout.limit_slots])
         e = rot.quat_to_rotvec(rot.quat_multiply(q[js], rot.quat_conjugate(q_ref[js])))
         reg_res = reg_res.at[ks].set(e)
-        reg_jac = reg_jac.at[ks].set(_left_jacobian_inverse(e) @ E[ks])
-    block = jnp.einsum("kl,kab->kalb", jnp.diag(sqrt_w), reg_jac).reshape(3 * nfree, 3 * nfree)
+        reg_jac = reg_jac.at[ks].set(matmul(_left_jacobian_inverse(e), E[ks]))
+    block = einsum("kl,kab->kalb", jnp.diag(sqrt_w), reg_jac).reshape(3 * nfree, 3 * nfree)
     return (sqrt_w[:, None] * reg_res).reshape(3 * nfree), jnp.concatenate([jnp.zeros((3 * nfree, off), dtype), block], axis=1)
 
 

@@ -20,6 +20,7 @@ from jax import lax
 from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import einsum
 from .._types import Array, Float
 from ..skeleton._skeleton import Skeleton
 
@@ -137,8 +138,8 @@ def _fk_levels(parents: tuple[int, ...], R_local, t_local):
         idx = plan.parent_local[lev - 1]
         R_par = _take(R_prev, idx)
         p_par = _take(p_prev, idx)
-        R_prev = jnp.einsum("jab,jbc->jac", R_par, R[s:e])
-        p_prev = p_par + jnp.einsum("jab,jb->ja", R_par, t[s:e])
+        R_prev = einsum("jab,jbc->jac", R_par, R[s:e])
+        p_prev = p_par + einsum("jab,jb->ja", R_par, t[s:e])
         Rs.append(R_prev)
         ps.append(p_prev)
     R_world = _take(jnp.concatenate(Rs, axis=0), plan.inverse)
@@ -151,7 +152,7 @@ def _end_sites(skeleton: Skeleton, R_world, p_world):
         return jnp.zeros((0, 3), dtype=p_world.dtype)
     par = list(skeleton.end_site_parents)
     off = skeleton.end_site_offsets.astype(p_world.dtype)
-    return _take(p_world, par) + jnp.einsum("eab,eb->ea", _take(R_world, par), off)
+    return _take(p_world, par) + einsum("eab,eb->ea", _take(R_world, par), off)
 
 
 def forward_kinematics(
@@ -216,8 +217,8 @@ def global_to_local(
     child = list(range(1, J))
     Q_par = _take(Q, [parents[j] for j in child])
     p_par = _take(p, [parents[j] for j in child])
-    R_loc = jnp.concatenate([Q[0:1], jnp.einsum("jba,jbc->jac", Q_par, Q[1:])], axis=0)
-    t_loc = jnp.concatenate([p[0:1], jnp.einsum("jba,jb->ja", Q_par, p[1:] - p_par)], axis=0)
+    R_loc = jnp.concatenate([Q[0:1], einsum("jba,jbc->jac", Q_par, Q[1:])], axis=0)
+    t_loc = jnp.concatenate([p[0:1], einsum("jba,jb->ja", Q_par, p[1:] - p_par)], axis=0)
     return rot.matrix_to_quat(R_loc), t_loc
 
 
@@ -274,5 +275,5 @@ def center_of_mass(
     check_shape("com_offsets", com_offsets, (J, 3), what=f"(joints, 3) = ({J}, 3)")
     dtype = res.positions.dtype
     m = jnp.asarray(masses, dtype=dtype)
-    c = res.positions + jnp.einsum("jab,jb->ja", res.rotations, jnp.asarray(com_offsets, dtype=dtype))
-    return jnp.einsum("j,ja->a", m, c) / jnp.sum(m)
+    c = res.positions + einsum("jab,jb->ja", res.rotations, jnp.asarray(com_offsets, dtype=dtype))
+    return einsum("j,ja->a", m, c) / jnp.sum(m)

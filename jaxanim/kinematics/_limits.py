@@ -38,6 +38,7 @@ import numpy as np
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import dot
 from .._types import Array, Float
 from ..skeleton._skeleton import Skeleton
 
@@ -245,7 +246,7 @@ def _swing_twist(q: Array, axis: Array, b1: Array, b2: Array) -> tuple[Array, Ar
     """``(s [2], tau)`` with ``q = exp(s1 b1 + s2 b2) exp(tau axis)`` (tau in ``[-pi, pi]``)."""
     q = rot.quat_canonical(q)
     w, v = q[0], q[1:]
-    c = v @ axis
+    c = dot(v, axis)
     n = jnp.sqrt(w * w + c * c)
     ok = n > 1e-12
     n = jnp.where(ok, n, 1)
@@ -253,7 +254,7 @@ def _swing_twist(q: Array, axis: Array, b1: Array, b2: Array) -> tuple[Array, Ar
     tau = jnp.where(ok, 2 * jnp.arctan2(c, jnp.where(ok, w, 1)), 0)
     tau = _wrap(tau)
     sigma = rot.quat_to_rotvec(rot.quat_multiply(q, rot.quat_conjugate(qt)))
-    return jnp.stack([sigma @ b1, sigma @ b2]), tau
+    return jnp.stack([dot(sigma, b1), dot(sigma, b2)]), tau
 
 
 class _Chart(eqx.Module):
@@ -287,7 +288,7 @@ class _Chart(eqx.Module):
         if self.kind == "swing":
             return jnp.concatenate([s, tau[None]])
         xy = s / self.lower[:2]
-        r = jnp.sqrt(xy @ xy)
+        r = jnp.sqrt(dot(xy, xy))
         xy = jnp.where(r > 1, xy / jnp.where(r > 1, r, 1), xy)
         return jnp.concatenate([_disc_to_square(xy), jnp.clip(tau, self.lower[2], self.upper[2])[None]])
 
@@ -303,7 +304,7 @@ class _Chart(eqx.Module):
             return _box_excess(theta, self.lower, self.upper)
         c = self.lower[:2]
         xy = theta[:2] / c
-        r2 = xy @ xy
+        r2 = dot(xy, xy)
         r = jnp.sqrt(jnp.where(r2 > 1, r2, 1))  # safe: only r > 1 matters
         swing = jnp.where(r2 > 1, (r - 1) * jnp.sqrt(c[0] * c[1]), 0)
         return jnp.stack([swing, _box_excess(theta[2], self.lower[2], self.upper[2])])

@@ -45,6 +45,7 @@ from jax import lax
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import HIGHEST, check_precision, dot
 from .._types import Array, Bool, Float, Int
 from ..skeleton._skeleton import Motion
 from ._database import MatchingDatabase
@@ -148,6 +149,8 @@ class ControllerOptions(eqx.Module):
         ignore_surrounding: a found row of the current clip within this many seconds of the current
             row does not count as a switch (the character plays on; no jumps of a frame or two).
         chunk: rows per step of the search's scan (static).
+        precision: of the search's distance product (static; see :func:`search`): ``"highest"``
+            (default) or the fast ``"default"`` (TF32 for float32 on NVIDIA GPUs).
     """
 
     search_period: float = eqx.field(default=0.15, converter=jnp.asarray)
@@ -161,6 +164,8 @@ class ControllerOptions(eqx.Module):
     adjust_speed_ratio: float = eqx.field(default=0.5, converter=jnp.asarray)
     ignore_surrounding: float = eqx.field(default=0.2, converter=jnp.asarray)
     chunk: int = eqx.field(default=DEFAULT_CHUNK, static=True)
+    precision: lax.Precision = eqx.field(default=HIGHEST, static=True,
+                                         converter=lambda p: check_precision("precision", p))
 
 
 class MatchResult(eqx.Module):
@@ -244,7 +249,7 @@ def _yaw_quat(yaw):
 
 
 @functools.lru_cache(maxsize=None)
-def _maybe_search_fn(chunk: int):
+def _maybe_search_fn(chunk: int, precision):
     """``(index, distance)`` of the nearest row if ``due``, else ``(0, inf)``. Batched over agents, the
     search runs for all of them when any is due (one matrix product per chunk), and not at all
     otherwise: a plain ``lax.cond`` would become a select and search on every frame."""
@@ -254,18 +259,20 @@ def _maybe_search_fn(chunk: int):
 
     @jax.custom_batching.custom_vmap
     def maybe(features, squared_norms, query, due):
-        return lax.cond(due, lambda: _search(features, squared_norms, query, chunk), lambda: skip(features, query))
+        return lax.cond(due, lambda: _search(features, squared_norms, query, chunk, precision),
+                        lambda: skip(features, query))
 
     @maybe.def_vmap
     def _rule(axis_size, in_batched, features, squared_norms, query, due):
         fb, sb, qb, db_ = in_batched
         if fb or sb:  # a database per agent: search them all, every time
             axes = (0 if fb else None, 0 if sb else None, 0 if qb else None)
-            i, d = jax.vmap(lambda f, s, q: _search(f, s, q, chunk), in_axes=axes, axis_size=axis_size)(
-                features, squared_norms, query)
+            i, d = jax.vmap(lambda f, s, q: _search(f, s, q, chunk, precision), in_axes=axes,
+                            axis_size=axis_size)(features, squared_norms, query)
         else:
             q = query if qb else jnp.broadcast_to(query, (axis_size,) + query.shape)
-            i, d = lax.cond(jnp.any(due), lambda: jax.vmap(lambda x: _search(features, squared_norms, x, chunk))(q),
+            i, d = lax.cond(jnp.any(due),
+                            lambda: jax.vmap(lambda x: _search(features, squared_norms, x, chunk, precision))(q),
                             lambda: skip(features, q))
         due_b = due if db_ else jnp.broadcast_to(due, (axis_size,))
         i = jnp.where(due_b, i, 0)
@@ -328,7 +335,7 @@ def _run(db: MatchingDatabase, inputs: ControlInput, num_frames: int, start_posi
     o = jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, o)
     times = db.layout.trajectory_times
     J = db.rotations.shape[1]
-    maybe_search = _maybe_search_fn(o.chunk)
+    maybe_search = _maybe_search_fn(o.chunk, o.precision)
     interval = jnp.maximum(jnp.round(o.search_period / dt), 1.0).astype(jnp.int32)
     N = db.num_rows
     surround = jnp.round(o.ignore_surrounding / dt).astype(jnp.int32)
@@ -370,9 +377,9 @@ def _run(db: MatchingDatabase, inputs: ControlInput, num_frames: int, start_posi
         # both distances computed directly (the same way batched or not); the found row must be better
         # beyond round-off, so a tie (a periodic clip's repeated frames) never switches
         diff = query - db.features[row]
-        row_d = jnp.where(db.searchable[row], jnp.dot(diff, diff), jnp.inf)
+        row_d = jnp.where(db.searchable[row], dot(diff, diff), jnp.inf)
         diff = query - db.features[best]
-        best_d = jnp.dot(diff, diff)
+        best_d = dot(diff, diff)
         near = (db.clip[best] == db.clip[row]) & (jnp.abs(db.frame[best] - db.frame[row]) <= surround)
         better = best_d < row_d - 1e-9 * (1.0 + row_d)
         switch = due & (db.last[row] | (~near & better))

@@ -38,6 +38,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import einsum, matmul
 
 __all__ = [
     "BodyState",
@@ -337,7 +338,7 @@ def _bmm(a: Array, b: Array) -> Array:
     products (2-2.5x slower under ``vmap``; a broadcast multiply and ``sum`` is slower still).
     Matrix-vector products stay ``dot``s."""
     if b.shape[-1] == 1 or not 6 <= a.shape[-1] <= 9:
-        return jnp.matmul(a, b)
+        return matmul(a, b)
     out = a[..., :, 0, None] * b[..., None, 0, :]
     for k in range(1, a.shape[-1]):
         out = out + a[..., :, k, None] * b[..., None, k, :]
@@ -380,7 +381,7 @@ def bodies_center_of_mass(bodies: RigidBodies, state: BodyState) -> tuple[Float[
     (Not :func:`jaxanim.center_of_mass`, the center of mass of a skeleton pose from segment masses.)
     """
     m = bodies.mass / jnp.sum(bodies.mass)
-    return m @ state.position, m @ state.linear_velocity
+    return matmul(m, state.position), matmul(m, state.linear_velocity)
 
 
 def linear_momentum(model: RigidBodies, state: BodyState) -> Float[Array, " 3"]:
@@ -393,7 +394,7 @@ def angular_momentum(
 ) -> Float[Array, " 3"]:
     """Total angular momentum about the point ``about`` (world): ``sum (x - a) x m v + I omega``."""
     r = state.position - jnp.asarray(about, state.position.dtype)[None, :]
-    spin = jnp.einsum("bij,bj->bi", world_inertia(model, state.orientation), state.angular_velocity)
+    spin = einsum("bij,bj->bi", world_inertia(model, state.orientation), state.angular_velocity)
     return jnp.sum(jnp.cross(r, model.mass[:, None] * state.linear_velocity) + spin, axis=0)
 
 
@@ -402,13 +403,13 @@ def kinetic_energy(model: RigidBodies, state: BodyState) -> Float[Array, ""]:
     I = world_inertia(model, state.orientation)
     w = state.angular_velocity
     return 0.5 * jnp.sum(model.mass * jnp.sum(state.linear_velocity**2, axis=-1)) + 0.5 * jnp.sum(
-        jnp.einsum("bi,bij,bj->b", w, I, w)
+        einsum("bi,bij,bj->b", w, I, w)
     )
 
 
 def potential_energy(model: RigidBodies, state: BodyState) -> Float[Array, ""]:
     """Gravitational potential ``-sum m g . x`` (zero at the origin)."""
-    return -jnp.sum(model.mass * (state.position @ model.gravity))
+    return -jnp.sum(model.mass * matmul(state.position, model.gravity))
 
 
 def force_at_point(
@@ -436,7 +437,7 @@ def _free_velocities(model: RigidBodies, state: BodyState, force, torque, h):
     ``v* = v + h (f/m + g)`` and ``omega* = I_n^{-1} (I_n omega + h tau)``."""
     v = state.linear_velocity + h * (force / model.mass[:, None] + model.gravity[None, :])
     I_n = world_inertia(model, state.orientation)
-    tau = jnp.einsum("bij,bj->bi", _world_inverse_inertia(model, state.orientation), torque)
+    tau = einsum("bij,bj->bi", _world_inverse_inertia(model, state.orientation), torque)
     return v, state.angular_velocity + h * tau, I_n
 
 
@@ -444,8 +445,8 @@ def _integrate(model: RigidBodies, state: BodyState, v, omega, I_n, h) -> BodySt
     """Positions with the new velocities, then the angular velocity re-expressed at the new
     orientation with the same angular momentum ``L = I_n omega``."""
     q = _integrate_orientation(state.orientation, omega, h)
-    L = jnp.einsum("bij,bj->bi", I_n, omega)
-    omega_new = jnp.einsum("bij,bj->bi", _world_inverse_inertia(model, q), L)
+    L = einsum("bij,bj->bi", I_n, omega)
+    omega_new = einsum("bij,bj->bi", _world_inverse_inertia(model, q), L)
     return BodyState(
         position=state.position + h * v,
         orientation=q,

@@ -33,6 +33,7 @@ from jaxtyping import Array, Float
 from .._errors import JaxanimError
 from ._bodies import BodyState, RigidBodies
 from .. import rotations as rot
+from .._linalg import matmul
 
 __all__ = ["CONTACT_MODELS", "Ground", "contact_points", "make_ground"]
 
@@ -143,7 +144,7 @@ def _geometry(ground: Ground, bodies: RigidBodies, state: BodyState):
     owner, local, radius = contact_points(bodies)
     n = ground.normal
     p = state.position[owner] + rot.quat_apply(state.orientation[owner], local)
-    phi = p @ n - ground.offset - radius
+    phi = matmul(p, n) - ground.offset - radius
     c = p - radius[:, None] * n[None, :]
     r = c - state.position[owner]
     vel = state.linear_velocity[owner] + jnp.cross(state.angular_velocity[owner], r)
@@ -154,7 +155,7 @@ def penalty_loads(ground: Ground, bodies: RigidBodies, state: BodyState) -> tupl
     """Penalty contact forces and torques on every body, ``([B, 3], [B, 3])`` (world frame)."""
     owner, r, phi, vel = _geometry(ground, bodies, state)
     n = ground.normal
-    vn = vel @ n
+    vn = matmul(vel, n)
     vt = vel - vn[:, None] * n[None, :]
     fn = jnp.where(phi < 0, jnp.maximum(0.0, -ground.stiffness * phi - ground.damping * vn), 0.0)
     speed = jnp.sqrt(jnp.sum(vt * vt, axis=-1) + 1e-6)

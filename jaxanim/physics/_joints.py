@@ -48,6 +48,7 @@ from jaxtyping import Array, Float
 from .. import rotations as rot
 from .._errors import JaxanimError
 from ._bodies import BodyState, RigidBodies
+from .._linalg import einsum
 
 __all__ = ["JOINT_TYPES", "Joints", "joint_errors", "joint_rows", "limit_rows", "make_joints"]
 
@@ -287,7 +288,7 @@ def joint_rows(joints: Joints, state: BodyState) -> tuple[Array, Array, Array]:
     t1, t2 = rot.perpendicular_basis(n_p)
     zero = jnp.zeros((Jn, 3), dtype)
     hinge_T = jnp.stack([t1, t2, zero], axis=1)  # [J, 3, 3]
-    hinge_g = jnp.einsum("jki,ji->jk", hinge_T, jnp.cross(n_p, n_c))
+    hinge_g = einsum("jki,ji->jk", hinge_T, jnp.cross(n_p, n_c))
     u = jnp.cross(n_p, n_c)
     univ_T = jnp.stack([-u, zero, zero], axis=1)  # the row on omega_c; minus it on omega_p
     univ_g = jnp.stack([jnp.sum(n_p * n_c, axis=-1), zero[:, 0], zero[:, 0]], axis=1)

@@ -22,6 +22,7 @@ from ._control import Control, Servo, StablePD, _as_control
 from ._joints import joint_errors, joint_rows, limit_rows
 from ._model import PhysicsModel
 from ._tree_solve import _plan, _tree_solve
+from .._linalg import einsum
 
 __all__ = ["spd_torques", "step"]
 
@@ -102,7 +103,7 @@ def _inertia_and_momentum(model: PhysicsModel, state: BodyState, v, w, I_n, h, s
     m_eye = model.bodies.mass[:, None, None] * jnp.eye(3, dtype=dtype)[None]
     M = jnp.concatenate([jnp.concatenate([m_eye, zeros33], -1), jnp.concatenate([zeros33, I_n], -1)], 1)
     V = jnp.concatenate([v, w], axis=-1)
-    p = jnp.einsum("bij,bj->bi", M, V)
+    p = einsum("bij,bj->bi", M, V)
     if servo is not None:
         bs, cs, active = _servo_rows(state, servo, h)
         k = jnp.where(active, 1.0 / (cs + model.cfm), 0.0)
@@ -192,14 +193,14 @@ def _solve_rows(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C):
     bb = jnp.concatenate([b[..., None], jnp.zeros(b.shape + (U,), dtype)], axis=-1)
     Vall = _tree_solve(plan, M, P, Jp, Jc, bb, C, model.scan_levels)
     V0, Y = Vall[..., 0], Vall[..., 1:]  # Y = H^{-1} J_u'  [bodies, 6, U]
-    A = jnp.einsum("uj,ujv->uv", rows_a, Y[owner_a])
-    rhs = target - jnp.einsum("uj,uj->u", rows_a, V0[owner_a])
+    A = einsum("uj,ujv->uv", rows_a, Y[owner_a])
+    rhs = target - einsum("uj,uj->u", rows_a, V0[owner_a])
     if L:
-        A = A.at[U - L:].add(jnp.einsum("uj,ujv->uv", rows_b, Y[owner_b]))
-        rhs = rhs.at[U - L:].add(-jnp.einsum("uj,uj->u", rows_b, V0[owner_b]))
+        A = A.at[U - L:].add(einsum("uj,ujv->uv", rows_b, Y[owner_b]))
+        rhs = rhs.at[U - L:].add(-einsum("uj,uj->u", rows_b, V0[owner_b]))
     A = 0.5 * (A + A.T) + model.cfm * jnp.eye(U, dtype=dtype)
     lam = projected_gauss_seidel(A, rhs, model.ground.friction, model.ground.iterations, num_single=L)
-    return V0 + jnp.einsum("bjv,v->bj", Y, lam)
+    return V0 + einsum("bjv,v->bj", Y, lam)
 
 
 def _spd_torques(model: PhysicsModel, Jp, Jc, b, C, V, h):
@@ -209,7 +210,7 @@ def _spd_torques(model: PhysicsModel, Jp, Jc, b, C, V, h):
     par = np.asarray(model.joints.parent)
     chi = np.asarray(model.joints.child)
     Vp = jnp.where(jnp.asarray(par >= 0)[:, None], V[np.maximum(par, 0)], 0.0)
-    Jv = jnp.einsum("jkc,jc->jk", Jc[:, -3:], V[chi]) + jnp.einsum("jkc,jc->jk", Jp[:, -3:], Vp)
+    Jv = einsum("jkc,jc->jk", Jc[:, -3:], V[chi]) + einsum("jkc,jc->jk", Jp[:, -3:], Vp)
     return (b[:, -3:] - Jv) / (C[:, -3:] * h)
 
 

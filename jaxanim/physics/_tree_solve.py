@@ -22,6 +22,7 @@ import numpy as np
 from .. import _tree
 from .._errors import JaxanimError
 from ._bodies import _bmm, _spd_inverse
+from .._linalg import matmul
 
 
 class _TreePlan(NamedTuple):
@@ -118,12 +119,12 @@ def _implicit_jvp(plan, scan_levels, primals, tangents):
     V, lam = _substitute(plan, factors, p, Jp, Jc, b, scan_levels)
     parent, child = plan.parent, plan.child
     jointed = np.flatnonzero(parent >= 0)
-    rhs_p = (dp - jnp.matmul(dM, V)).at[child].add(jnp.matmul(jnp.swapaxes(dJc, -1, -2), lam))
-    rhs_b = db - jnp.matmul(dJc, V[child]) - dC[..., None] * lam
+    rhs_p = (dp - matmul(dM, V)).at[child].add(matmul(jnp.swapaxes(dJc, -1, -2), lam))
+    rhs_b = db - matmul(dJc, V[child]) - dC[..., None] * lam
     if jointed.size:
         pa = parent[jointed]
-        rhs_p = rhs_p.at[pa].add(jnp.matmul(jnp.swapaxes(dJp[jointed], -1, -2), lam[jointed]))
-        rhs_b = rhs_b.at[jointed].add(-jnp.matmul(dJp[jointed], V[pa]))
+        rhs_p = rhs_p.at[pa].add(matmul(jnp.swapaxes(dJp[jointed], -1, -2), lam[jointed]))
+        rhs_b = rhs_b.at[jointed].add(-matmul(dJp[jointed], V[pa]))
     dV, _ = _substitute(plan, factors, rhs_p, Jp, Jc, rhs_b, scan_levels)
     return V, dV
 

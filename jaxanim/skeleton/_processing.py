@@ -35,6 +35,7 @@ import numpy as np
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import matmul
 from .._types import Array, ArrayLike, Float
 from ._skeleton import Motion, Skeleton
 
@@ -438,7 +439,7 @@ def _make_loop(motion: Motion, up: tuple) -> Motion:
     # the last frame that makes the wrap step the mean step: exp(-mean) local_0
     target = rot.quat_multiply(rot.rotvec_to_quat(-mean_step), local[0])
     r_rot = _rel(target, local[F - 1])  # [J, 3]
-    h = t[:, 0] @ u  # [F]
+    h = matmul(t[:, 0], u)  # [F]
     r_h = (h[0] - h[F - 1]) - 0.5 * ((h[F - 1] - h[F - 2]) + (h[1] - h[0]))
     alpha = jnp.arange(F, dtype=q.dtype) / (F - 1)
     fix = rot.rotvec_to_quat(alpha[:, None, None] * r_rot[None])

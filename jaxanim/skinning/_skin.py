@@ -30,6 +30,7 @@ from jax import lax
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
+from .._linalg import HIGHEST, check_precision, einsum, matmul
 from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics
 from ..skeleton._skeleton import Motion, Skeleton
@@ -114,15 +115,15 @@ def bind_transforms(
 def _skinning_transforms(skeleton, rotations, translations, R_bind, p_bind):
     """``M_j = G_j(pose) G_j(bind)^-1`` as ``(R [J, 3, 3], t [J, 3])``."""
     fk = forward_kinematics(skeleton, rotations, translations)
-    R = jnp.einsum("jab,jcb->jac", fk.rotations, R_bind)
-    t = fk.positions - jnp.einsum("jab,jb->ja", R, p_bind)
+    R = einsum("jab,jcb->jac", fk.rotations, R_bind)
+    t = fk.positions - einsum("jab,jb->ja", R, p_bind)
     return R, t
 
 
 _DENSE_MAX = 1 << 24  # entries of a dense per-vertex matrix of the one-product forms (128 MB in float64)
 
 
-def _lbs(R, t, vertices, joints, w):
+def _lbs(R, t, vertices, joints, w, precision=HIGHEST):
     """``v' = (sum_k w_k M_{j_k}) [v; 1]``, regrouped as one matrix product when it fits in
     :data:`_DENSE_MAX`: ``v'_a = sum_{j,b} (W_vj [v; 1]_b) M_jab``, i.e. ``X [V, 4J] @ M' [4J, 3]``
     with ``W`` the ``[V, J]`` weights scattered into their joints' columns. ``X`` does not depend on
@@ -132,12 +133,12 @@ def _lbs(R, t, vertices, joints, w):
     J, V = R.shape[0], vertices.shape[0]
     M = jnp.concatenate([R, t[:, :, None]], axis=2)  # [J, 3, 4]
     if 4 * V * J > _DENSE_MAX:
-        A = jnp.einsum("vk,vkab->vab", w, M[joints])  # blended 3x4 per vertex
-        return jnp.einsum("vab,vb->va", A[:, :, :3], vertices) + A[:, :, 3]
+        A = einsum("vk,vkab->vab", w, M[joints], precision=precision)  # blended 3x4 per vertex
+        return einsum("vab,vb->va", A[:, :, :3], vertices, precision=precision) + A[:, :, 3]
     W = jnp.zeros((V, J), w.dtype).at[jnp.arange(V)[:, None], joints].add(w)
     vh = jnp.concatenate([vertices, jnp.ones_like(vertices[:, :1])], axis=1)  # [V, 4]
     X = (W[:, :, None] * vh[:, None, :]).reshape(V, 4 * J)
-    return X @ jnp.transpose(M, (0, 2, 1)).reshape(4 * J, 3)
+    return matmul(X, jnp.transpose(M, (0, 2, 1)).reshape(4 * J, 3), precision=precision)
 
 
 def _dual_quaternions(R, t):
@@ -168,7 +169,7 @@ def _dqs_pairs(joints: np.ndarray, w: np.ndarray, num_joints: int) -> _Pairs | N
                   jnp.asarray(keys % num_joints, jnp.int32))
 
 
-def _dqs(R, t, vertices, joints, w, pairs: _Pairs | None = None):
+def _dqs(R, t, vertices, joints, w, pairs: _Pairs | None = None, precision=HIGHEST):
     """Dual-quaternion skinning. The blend ``b_v = sum_k w_k s_k q_{j_k}``, with the sign ``s_k`` of
     ``r_{j_k} . r_pivot(v)``, is either gathered per vertex (``[V, K, 8]``), or, given the ``pairs``
     of the weights (:func:`_dqs_pairs`), one matrix product ``X [V, P] @ Y [P, 8]``: ``X`` holds the
@@ -181,14 +182,14 @@ def _dqs(R, t, vertices, joints, w, pairs: _Pairs | None = None):
         pivot = jnp.argmax(w, axis=1)
         r_pivot = jnp.take_along_axis(r, pivot[:, None, None], axis=1)  # [V, 1, 4]
         ws = w * jnp.where(jnp.sum(r * r_pivot, axis=2) < 0, -1.0, 1.0).astype(w.dtype)
-        b_r = jnp.einsum("vk,vkc->vc", ws, r)
-        b_d = jnp.einsum("vk,vkc->vc", ws, d)
+        b_r = einsum("vk,vkc->vc", ws, r, precision=precision)
+        b_d = einsum("vk,vkc->vc", ws, d, precision=precision)
     else:
         V, P = vertices.shape[0], pairs.pivot.shape[0]
         sign = jnp.where(jnp.sum(qr[pairs.pivot] * qr[pairs.joint], axis=1) < 0, -1.0, 1.0).astype(w.dtype)
         Y = sign[:, None] * jnp.concatenate([qr, qd], axis=1)[pairs.joint]  # [P, 8]
         X = jnp.zeros((V, P), w.dtype).at[jnp.arange(V)[:, None], pairs.index].add(w)
-        b = X @ Y
+        b = matmul(X, Y, precision=precision)
         b_r, b_d = b[:, :4], b[:, 4:]
     n2 = jnp.sum(b_r * b_r, axis=1, keepdims=True)
     tiny = jnp.finfo(w.dtype).tiny ** 0.5
@@ -200,7 +201,8 @@ def _dqs(R, t, vertices, joints, w, pairs: _Pairs | None = None):
     return rot.quat_apply(b_r, vertices) + trans
 
 
-def _skin_kernel(skeleton, rotations, translations, vertices, joints, w, bind, pairs, method: str):
+def _skin_kernel(skeleton, rotations, translations, vertices, joints, w, bind, pairs, method: str,
+                 precision=HIGHEST):
     dtype = vertices.dtype
     if bind is None:
         R_bind, p_bind = _rest_fk(skeleton)
@@ -208,21 +210,22 @@ def _skin_kernel(skeleton, rotations, translations, vertices, joints, w, bind, p
         R_bind, p_bind = bind
     R, t = _skinning_transforms(skeleton, rotations, translations, R_bind.astype(dtype), p_bind.astype(dtype))
     if method == "lbs":
-        return _lbs(R, t, vertices, joints, w)
-    return _dqs(R, t, vertices, joints, w, pairs)
+        return _lbs(R, t, vertices, joints, w, precision)
+    return _dqs(R, t, vertices, joints, w, pairs, precision)
 
 
-_skin_one = jax.jit(_skin_kernel, static_argnames=("method",))
+_skin_one = jax.jit(_skin_kernel, static_argnames=("method", "precision"))
 
 
-def _frames_kernel(skeleton, rotations, translations, vertices, joints, w, bind, pairs, method: str):
+def _frames_kernel(skeleton, rotations, translations, vertices, joints, w, bind, pairs, method: str,
+                   precision=HIGHEST):
     """``vmap(skin)`` over the frames of ``rotations [F, J, 4]`` and ``translations [F, J, 3]``."""
-    fn = functools.partial(_skin_kernel, method=method)
+    fn = functools.partial(_skin_kernel, method=method, precision=precision)
     return jax.vmap(fn, in_axes=(None, 0, 0, None, None, None, None, None))(
         skeleton, rotations, translations, vertices, joints, w, bind, pairs)
 
 
-_skin_frames = jax.jit(_frames_kernel, static_argnames=("method",))
+_skin_frames = jax.jit(_frames_kernel, static_argnames=("method", "precision"))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -267,6 +270,7 @@ def skin(
     bind=None,
     *,
     normalize: bool = False,
+    precision: lax.Precision | str = HIGHEST,
 ) -> Float[Array, "V 3"]:
     """Deform bind-pose vertices to one pose by linear blend or dual-quaternion skinning.
 
@@ -292,20 +296,25 @@ def skin(
         bind: the bind pose: ``None`` (the rest pose), ``[joints, 4, 4]`` from
             :func:`bind_transforms`, or a tuple ``(R [joints, 3, 3], p [joints, 3])``.
         normalize: divide each vertex's weights by their sum instead of requiring a sum of 1.
+        precision: of the blend's matrix products over the vertices: ``"highest"`` (the default:
+            float32 at float32 accuracy on every backend) or the fast ``"default"``, which on an
+            NVIDIA GPU runs float32 products in TF32 (about 10 bits of mantissa, so an error of
+            about 1e-3 of the coordinates' size). The joints' transforms are always ``"highest"``.
 
     Returns:
         ``[V, 3]`` deformed vertex positions, world frame (file units).
 
     Raises:
-        JaxanimError: an unknown method, a shape that does not match, or bad weights (see
-            :func:`check_weights`).
+        JaxanimError: an unknown method or precision, a shape that does not match, or bad weights
+            (see :func:`check_weights`).
     """
     vertices, joints, w, bind, pairs, dtype = _prepare(skeleton, vertices, weights, method, bind, normalize,
                                                        rotations, translations)
     rotations = jnp.asarray(rotations).astype(dtype)
     if translations is not None:
         translations = jnp.asarray(translations).astype(dtype)
-    return _skin_one(skeleton, rotations, translations, vertices, joints, w, bind, pairs, method=method)
+    return _skin_one(skeleton, rotations, translations, vertices, joints, w, bind, pairs, method=method,
+                     precision=check_precision("precision", precision))
 
 
 def skin_motion(
@@ -317,6 +326,7 @@ def skin_motion(
     bind=None,
     *,
     normalize: bool = False,
+    precision: lax.Precision | str = HIGHEST,
 ) -> Float[Array, "frames V 3"]:
     """Skin every frame of a clip: one compiled ``jax.vmap`` of :func:`skin` over the frames.
 
@@ -328,6 +338,7 @@ def skin_motion(
         method: ``"lbs"`` or ``"dqs"``.
         bind: the bind pose, as for :func:`skin`.
         normalize: as for :func:`skin`.
+        precision: as for :func:`skin`.
 
     Returns:
         ``[frames, V, 3]`` deformed vertices.
@@ -335,7 +346,8 @@ def skin_motion(
     Raises:
         JaxanimError: as :func:`skin`, or a clip that does not fit the skeleton.
     """
-    return _skin_frames(*_frames_args(skeleton, motion, mesh, weights, method, bind, normalize), method=method)
+    return _skin_frames(*_frames_args(skeleton, motion, mesh, weights, method, bind, normalize), method=method,
+                        precision=check_precision("precision", precision))
 
 
 def _frames_args(skeleton, motion, mesh, weights, method="lbs", bind=None, normalize=False) -> tuple:

@@ -47,6 +47,7 @@ import numpy as np
 from jax.lax.linalg import tridiagonal_solve
 
 from .._errors import JaxanimError, check_shape
+from .._linalg import einsum
 from .._types import Array, ArrayLike, Float
 from ..rotations._base import _as_float_any
 
@@ -271,7 +272,7 @@ def _bezier_segments(curve: PiecewiseCubic, i: Array, u: Array, h: Array, deriva
     cp = curve.control_points.reshape(curve.num_segments, 4, -1)[i.reshape(-1)]  # [Q, 4, D]
     cp = _difference(cp, derivative, axis=1)
     w = _bernstein(3 - derivative, u.reshape(-1))  # [Q, 4 - k]
-    val = jnp.einsum("qk,qkd->qd", w, cp)
+    val = einsum("qk,qkd->qd", w, cp)
     if derivative:
         val = val * (h ** (-derivative)).reshape(-1, 1)
     return val.reshape(q + shape)

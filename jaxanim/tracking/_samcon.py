@@ -44,6 +44,7 @@ from solvers import RESULTS
 
 from .. import rotations as rot
 from .._errors import JaxanimError
+from .._linalg import dot, matmul
 from ..character._build import Character, _clip_targets, root_body
 from ..physics._bodies import BodyState
 from ..physics._contact import _geometry
@@ -420,7 +421,8 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
             dqf = dq
             if feedback is not None:
                 gains, nominal, limit = feedback
-                u = (gains[f - 1] @ state_difference(s, jax.tree.map(lambda x: x[f - 1], nominal))).reshape(nj, 3)
+                dx = state_difference(s, jax.tree.map(lambda x: x[f - 1], nominal))
+                u = matmul(gains[f - 1], dx).reshape(nj, 3)
                 dqf = rot.quat_multiply(dq, rot.rotvec_to_quat(_clip_norm(u, limit)))
             s, tau = simulate_frame(s, f, dqf, push)
             return (s, c + frame_cost(s, f)), (s, tau)
@@ -441,14 +443,14 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
         def one(s, f):
             e, _ = joint_errors(model.joints, s, reference.targets[f])
             d = s.position[root] - ref.position[f, root]
-            d = d - (d @ normal) * normal
+            d = d - dot(d, normal) * normal
             return jnp.mean(jnp.linalg.norm(e, axis=-1)), jnp.linalg.norm(d)
 
         return jax.vmap(one)(states, jnp.arange(F))
 
     def fell(states: BodyState):
-        height = states.position[:, root] @ normal
-        lowest = jnp.min(ref.position[:, root] @ normal)
+        height = matmul(states.position[:, root], normal)
+        lowest = jnp.min(matmul(ref.position[:, root], normal))
         return jnp.any(height < 0.7 * lowest)
 
     return _Problem(window, simulate_frame, start_state, frame_cost, errors, fell, nj)
