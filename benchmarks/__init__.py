@@ -1,6 +1,9 @@
-"""Benchmarks of jaxanim against its peers: ``python -m benchmarks [NAME ...] [--quick]``. :data:`REGISTRY` maps
-the command-line names to ``run(config: BenchConfig) -> list[Table]`` functions, imported lazily so that one
-benchmark's missing dependency never stops another; missing peers are ``skipped`` rows."""
+"""Benchmarks of jaxanim against its peers: ``python -m benchmarks [NAME ...] [--quick] [--gpu]``. :data:`REGISTRY`
+maps the command-line names to ``run(config: BenchConfig) -> list[Table]`` functions, imported lazily so that one
+benchmark's missing dependency never stops another; missing peers are ``skipped`` rows. :func:`run_benchmarks` runs
+each benchmark as a *section*: within its own time budget (``BenchConfig.deadline``, cooperative: a row that would
+end past it is skipped and says so), caught if it raises (a failed table, the rest still runs), and handing the
+rows so far to a writer after every row, so that an interrupted run keeps every row it finished."""
 
 from __future__ import annotations
 
@@ -11,11 +14,13 @@ import os
 import pathlib
 import sys
 import time
-from collections.abc import Callable, Sequence
+import traceback
+from collections.abc import Callable, Mapping, Sequence
 
 from .report import Row as Row, Table as Table, utc_now
 
-__all__ = ["REGISTRY", "BenchConfig", "BenchmarkSpec", "Row", "Table", "default_data_dir", "run_benchmarks"]
+__all__ = ["ACCELERATOR_BUDGET_S", "ACCELERATOR_SECTIONS", "ACCELERATOR_TOTAL_S", "REGISTRY", "BenchConfig",
+           "BenchmarkSpec", "Row", "Table", "default_data_dir", "run_benchmarks"]
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -30,7 +35,10 @@ def default_data_dir() -> pathlib.Path:
 class BenchConfig:
     """Settings shared by every benchmark of one run: ``batches`` (overrides every benchmark's), timed samples
     (``repeats``) after ``warmup`` calls within ``max_row_s`` per row, the most configurations a Python-loop peer
-    runs per timed call (``loop_cap``) and ``only`` the implementations matching a case-insensitive shell pattern."""
+    runs per timed call (``loop_cap``) and ``only`` the implementations matching a case-insensitive shell pattern.
+    ``accelerator`` selects each benchmark's accelerator sizes (``--gpu`` on a machine with one; ``quick`` wins).
+    :func:`run_benchmarks` sets the running ``section``, its ``section_budget_s`` and ``deadline`` (a
+    ``time.monotonic()`` instant; ``None``: no budget) and ``on_row``, called with a table after each of its rows."""
 
     quick: bool = False
     dtypes: tuple[str, ...] = ("float32", "float64")
@@ -42,14 +50,45 @@ class BenchConfig:
     data_dir: pathlib.Path = dataclasses.field(default_factory=default_data_dir)
     only: tuple[str, ...] | None = None
     verbose: bool = True
+    accelerator: bool = False
+    section: str | None = None
+    section_budget_s: float | None = None
+    deadline: float | None = None
+    on_row: Callable[[Table], None] | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @classmethod
     def make_quick(cls, **kwargs) -> BenchConfig:
         """A configuration for smoke tests: batches (1, 8), 3 repeats, 1 warm-up, loop cap 8."""
         return cls(**dict(quick=True, batches=(1, 8), repeats=3, warmup=1, max_row_s=1.0, loop_cap=8) | kwargs)
 
-    def batches_for(self, default: Sequence[int]) -> tuple[int, ...]:
-        return tuple(self.batches) if self.batches is not None else tuple(default)
+    @classmethod
+    def make_accelerator(cls, **kwargs) -> BenchConfig:
+        """The accelerator sizes (``--gpu``), sampled more briefly so that the ladders fit their section budgets:
+        5 repeats, 1 warm-up, 8 s per row, Python loops capped at 512 configurations (their time per configuration
+        does not depend on the batch)."""
+        return cls(**dict(accelerator=True, repeats=5, warmup=1, max_row_s=8.0, loop_cap=512) | kwargs)
+
+    def batches_for(self, default: Sequence[int], accelerator: Sequence[int] | None = None) -> tuple[int, ...]:
+        """``batches`` if set, else the ``accelerator`` ladder under :attr:`accelerator`, else ``default``."""
+        if self.batches is not None:
+            return tuple(self.batches)
+        return tuple(accelerator if self.accelerator and accelerator is not None else default)
+
+    def pick(self, full, quick=None, accelerator=None):
+        """A benchmark's sizes for this run: ``quick`` in quick mode, ``accelerator`` under :attr:`accelerator`
+        (each when given), else ``full``."""
+        if self.quick and quick is not None:
+            return quick
+        return accelerator if self.accelerator and accelerator is not None else full
+
+    def time_left(self) -> float | None:
+        """Seconds left of the running section's budget (negative once spent), or ``None`` without a budget."""
+        return None if self.deadline is None else self.deadline - time.monotonic()
+
+    def row_time_s(self) -> float:
+        """How long one row may sample: ``max_row_s``, or less where the section has less time left (≥ 0)."""
+        left = self.time_left()
+        return self.max_row_s if left is None else max(0.0, min(self.max_row_s, left))
 
     def selects(self, implementation: str) -> bool:
         """Whether ``implementation`` passes the ``only`` filter."""
@@ -66,9 +105,11 @@ class BenchConfig:
             self.log(f"{name}: runs in float64 only ({why}); --dtype is ignored")
 
     def log(self, msg: str) -> None:
-        """Print a progress line to stderr (when ``verbose``)."""
+        """Print a progress line to stderr (when ``verbose``), after the section's seconds spent / budget."""
         if self.verbose:
-            print(f"[benchmarks] {msg}", file=sys.stderr, flush=True)
+            left, budget = self.time_left(), self.section_budget_s
+            clock = "" if left is None else f"[{self.section} {budget - left:.0f}/{budget:g} s] "
+            print(f"[benchmarks] {clock}{msg}", file=sys.stderr, flush=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,25 +148,71 @@ REGISTRY: dict[str, BenchmarkSpec] = {s.name: s for s in (
 )}
 
 
-def run_benchmarks(names: Sequence[str], config: BenchConfig, command: str = "python -m benchmarks") -> list[Table]:
-    """Run the named benchmarks (all if empty; the command line checks the names) in order; every table records
-    how it was measured."""
+#: The sections ``--gpu`` runs when no names are given: the accelerator sizes of issue 29 (``jacobian``, ``profile``
+#: and ``scaling`` run when named).
+ACCELERATOR_SECTIONS = ("fk", "ik", "physics", "tracking", "matching", "skinning", "oc")
+
+#: Seconds per section under ``--gpu``: the sections of :data:`ACCELERATOR_SECTIONS` add up to 475 s, and the run
+#: as a whole gets :data:`ACCELERATOR_TOTAL_S` (a row that starts within its budget runs to its end; the total cuts
+#: the sections after an overrun short), so that it ends in about 9 minutes.
+ACCELERATOR_BUDGET_S: dict[str, float] = {
+    "fk": 55.0, "jacobian": 40.0, "ik": 75.0, "physics": 120.0, "tracking": 70.0, "matching": 45.0, "skinning": 35.0,
+    "oc": 75.0, "profile": 60.0, "scaling": 60.0}
+ACCELERATOR_TOTAL_S = 540.0
+
+
+def run_benchmarks(names: Sequence[str], config: BenchConfig, command: str = "python -m benchmarks",
+                   budgets: Mapping[str, float] | None = None, write: Callable[[list[Table]], None] | None = None,
+                   total_s: float | None = None) -> list[Table]:
+    """Run the named benchmarks (all if empty; the command line checks the names) in order, each as a section
+    within ``budgets[name]`` seconds (if given) and what is left of ``total_s`` (if given); every table records
+    how it was measured. ``write`` receives the tables so far after every row (the running section's marked as
+    such) and after every section. A section that raises keeps the rows it finished and ends with a failed table;
+    the next section runs."""
     names = list(names) or list(REGISTRY)
     tables: list[Table] = []
+    end = None if total_s is None else time.monotonic() + total_s
     for n in names:
-        config.log(f"== {n}: {REGISTRY[n].description}")
+        live: list[Table] = []  # the running section's tables, as its rows arrive
+
+        def on_row(table: Table, live: list[Table] = live, n: str = n) -> None:
+            if not any(t is table for t in live):
+                live.append(table)
+            if write is not None:
+                note = f"*Section `{n}` was still running when this was written: the rows it had finished.*"
+                write(tables + [dataclasses.replace(t, run=note) for t in live])
+
+        budget = None if budgets is None else budgets.get(n)
+        if end is not None:  # what is left of the run's total
+            left = round(max(end - time.monotonic(), 0.0), 1)
+            budget = left if budget is None else min(budget, left)
+        cfg = dataclasses.replace(config, section=n, section_budget_s=budget, on_row=on_row,
+                                  deadline=None if budget is None else time.monotonic() + budget)
+        cfg.log(f"== {n}: {REGISTRY[n].description}" + ("" if budget is None else f" (time budget {budget:g} s)"))
         load0, start = _load(), time.perf_counter()
-        new = REGISTRY[n].load()(config)
+        try:
+            new = REGISTRY[n].load()(cfg)
+        except Exception as exc:  # a section that fails loses only itself
+            traceback.print_exc()
+            why = f"failed: {type(exc).__name__}: {(str(exc).splitlines() or [''])[0][:200]}"
+            cfg.log(f"{n}: {why}")
+            new = live + [Table(n, f"Benchmark `{n}`: failed", REGISTRY[n].description, skipped=why + (
+                " (the tables above are the rows it finished)" if live else ""))]
+        wall = time.perf_counter() - start
         load1, cores = _load(), os.cpu_count()
         busy = any(x != "n/a" and float(x) > cores for x in (load0, load1))
-        run = (f"*Measured by `{command}` (benchmark `{n}`, {'quick' if config.quick else 'full'} mode), finished "
-               f"{utc_now()}, in {time.perf_counter() - start:.0f} s; 1-minute load average {load0} at its start and "
-               f"{load1} at its end on {cores} logical cores"
+        mode = "quick" if config.quick else "accelerator" if config.accelerator else "full"
+        run = (f"*Measured by `{command}` (benchmark `{n}`, {mode} mode), finished {utc_now()}, in {wall:.0f} s"
+               + ("" if budget is None else f" (section time budget {budget:g} s)") + f"; 1-minute load average "
+               f"{load0} at its start and {load1} at its end on {cores} logical cores"
                + (" (above the core count: other processes shared the CPU and inflated every time)" if busy else "")
                + ".*")
         for t in new:
             t.run = run
         tables.extend(new)
+        cfg.log(f"== {n}: done in {wall:.0f} s")
+        if write is not None:
+            write(tables)
     return tables
 
 

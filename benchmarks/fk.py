@@ -1,4 +1,5 @@
-"""Forward-kinematics and Jacobian benchmarks (``fk``, ``jacobian``); float64 runs first, its reference rows reused."""
+"""Forward-kinematics and Jacobian benchmarks (``fk``, ``jacobian``); float64 runs first, its reference rows reused.
+The poses are built on the device in one jitted call (:class:`Problem`)."""
 
 from __future__ import annotations
 
@@ -12,19 +13,22 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.spatial.transform import Rotation as JaxRotation
 from jaxanim import forward_kinematics, jacobian, read_bvh
-from scipy.spatial.transform import Rotation
 
 from .peers import PeerUnavailable
 from .peers import numpy_fk as numpy_peer, pinocchio_peer
 from .report import Row, Table, Target, sel
 from .timing import Runner
 
-__all__ = ["CLIP", "Problem", "autodiff_jacobian", "naive_fk", "perturbed_sites", "run_fk", "run_jacobian"]
+__all__ = ["CLIP", "Problem", "autodiff_jacobian", "euler_quats", "naive_fk", "perturbed_sites", "run_fk",
+           "run_jacobian"]
 
 CLIP = "bvh/cmu_01_01_trim300.bvh"
 REFERENCE = "fk/cmu_01_01_trim300.fk.npz"
 FK_BATCHES = (1, 64, 1024, 4096, 16384)
+FK_ACCELERATOR_BATCHES = (1024, 131072, 1_048_576)  # --gpu on a machine with an accelerator
+_HOST_MAX_BATCH = 131072  # under --gpu the NumPy peer (on the host; its µs per pose is flat) stops here
 JACOBIAN_BATCHES = (1, 64, 1024, 4096)
+JACOBIAN_ACCELERATOR_BATCHES = (1024, 16384, 131072)
 JACOBIAN_SITES = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "Head_End")
 SEED = 0
 MAX_ANGLE_DEG = 45.0
@@ -37,9 +41,51 @@ def _cast(tree, dtype):
     return jax.tree.map(lambda x: jnp.asarray(x, dtype=dtype) if floating(x) else x, tree)
 
 
+def _times_axis(q: tuple, axis: str, c, s) -> tuple:
+    """The components of ``q (c + s e_axis)`` (``q`` as ``(w, x, y, z)``; ``c, s``: cosine and sine of half the
+    angle): ``c q + s (q e_axis)``, where ``q e_axis`` is a signed permutation of ``q``."""
+    w, x, y, z = q
+    e = {"X": (-x, w, z, -y), "Y": (-y, -z, w, x), "Z": (-z, y, -x, w)}[axis]
+    return tuple(c * a + s * b for a, b in zip(q, e))
+
+
+def euler_quats(angles, axes: str, q=None):
+    """``q R_a0(angles[..., 0]) R_a1(angles[..., 1]) R_a2(angles[..., 2])`` as wxyz quaternions ``[..., 4]``:
+    intrinsic rotations about ``axes`` (e.g. ``"XYZ"``; scipy's ``Rotation.from_euler`` with upper-case axes: the
+    same products of elementary quaternions) after ``q`` (default the identity), component by component (no
+    gathers: elementwise, fused by XLA). NumPy in, NumPy out (float64); a JAX array in, JAX out (traceable)."""
+    xp = jnp if isinstance(angles, jax.Array) else np
+    parts = None if q is None else tuple(q[..., i] for i in range(4))
+    for k, axis in enumerate(axes):
+        half = 0.5 * angles[..., k]
+        c, s = xp.cos(half), xp.sin(half)
+        if parts is None:
+            parts = (c,) + tuple(s if i == "XYZ".index(axis) else xp.zeros_like(s) for i in range(3))
+        else:
+            parts = _times_axis(parts, axis, c, s)
+    return xp.stack(parts, axis=-1)
+
+
+@jax.jit
+def _poses(clip_q: jax.Array, frames: jax.Array, angles_deg: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(quats [B, J, 4], matrices [B, J, 3, 3])``: the clip's (normalised) frames ``frames`` times
+    ``Rx Ry Rz(angles_deg)`` joint by joint."""
+    clip_q = clip_q / jnp.linalg.norm(clip_q, axis=-1, keepdims=True)
+    q = euler_quats(jnp.deg2rad(angles_deg), "XYZ", clip_q[frames])
+    w, x, y, z = (q[..., i] for i in range(4))
+    m = jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                   2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                   2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+    return q, m.reshape(q.shape[:-1] + (3, 3))
+
+
 class Problem:
     """The CMU skeleton (float64) and ``max_batch`` poses: ``quats [B, J, 4]`` wxyz, ``mats [B, J, 3, 3]``,
-    ``trans [B, J, 3]`` (float64 numpy), and the clip as read (``motion``)."""
+    ``trans [B, J, 3]`` (float64; NumPy copies of the device arrays, made when first asked for), and the clip as
+    read (``motion``). Pose ``b`` is the clip's frame ``b mod frames`` with every local rotation times ``Rx(a) Ry(b)
+    Rz(c)`` of seeded angles, so the first poses of a larger problem are the same. The angles are drawn by NumPy
+    (the same on every machine) and the poses built on the default device in one jitted elementwise call
+    (:func:`euler_quats`), not on the host: 10^6 poses are 31 M quaternions and matrices."""
 
     def __init__(self, path: pathlib.Path, max_batch: int, seed: int = SEED):
         skeleton, self.motion = read_bvh(str(path))
@@ -47,17 +93,18 @@ class Problem:
         clip_q = np.asarray(self.motion.rotations, dtype=np.float64)
         frames = np.arange(max_batch) % clip_q.shape[0]
         rng = np.random.default_rng(seed)
-        ang = np.deg2rad(rng.uniform(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, size=(max_batch, clip_q.shape[1], 3)))
-        r = Rotation.from_quat(clip_q[frames].reshape(-1, 4)[:, [1, 2, 3, 0]]) * Rotation.from_euler(
-            "XYZ", ang.reshape(-1, 3))  # each local rotation times Rx(a) Ry(b) Rz(c)
-        self.quats = r.as_quat()[:, [3, 0, 1, 2]].reshape(ang.shape[:2] + (4,))
-        self.mats = r.as_matrix().reshape(ang.shape[:2] + (3, 3))
-        self.trans = np.ascontiguousarray(np.asarray(self.motion.translations, dtype=np.float64)[frames])
+        ang = rng.uniform(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, size=(max_batch, clip_q.shape[1], 3))
+        self.device_quats, self.device_mats = _poses(clip_q, frames, ang)
+        self.device_trans = jnp.asarray(self.motion.translations, dtype=jnp.float64)[frames]
+
+    quats = functools.cached_property(lambda self: np.asarray(self.device_quats))
+    mats = functools.cached_property(lambda self: np.asarray(self.device_mats))
+    trans = functools.cached_property(lambda self: np.asarray(self.device_trans))
 
     def jax_inputs(self, dtype: Any, batch: int, matrices: bool = False) -> tuple[jax.Array, jax.Array]:
         """``(rotations, translations)`` of the first ``batch`` poses: quaternions, or matrices."""
-        rot = self.mats if matrices else self.quats
-        return jnp.asarray(rot[:batch], dtype=dtype), jnp.asarray(self.trans[:batch], dtype=dtype)
+        rot = self.device_mats if matrices else self.device_quats
+        return rot[:batch].astype(dtype), self.device_trans[:batch].astype(dtype)
 
 
 def naive_fk(skeleton, rotations: jax.Array, translations: jax.Array) -> numpy_peer.FKArrays:
@@ -180,7 +227,7 @@ _PIN_FK = "Pinocchio forwardKinematics"
 
 def run_fk(config) -> list[Table]:
     """The ``fk`` benchmark (see the module docstring)."""
-    batches = config.batches_for(FK_BATCHES)
+    batches = config.batches_for(FK_BATCHES, FK_ACCELERATOR_BATCHES)
     description = (
         f"Global rotations, joint and End Site positions of a batch of poses of the 31-joint CMU skeleton (`{CLIP}`, "
         f"7 End Sites): clip frame `b mod 300`, every local rotation right-multiplied by a random rotation of up to "
@@ -210,8 +257,9 @@ def run_fk(config) -> list[Table]:
             q_in, m_in = problem.jax_inputs(dtype, b), problem.jax_inputs(dtype, b, matrices=True)
             e = lambda out, b=b: _max_err(zip(_outputs(out), ref.get(b)))  # noqa: E731
             ours = lambda: jax.vmap(functools.partial(forward_kinematics, skel))  # noqa: E731
-            np_args = (skel64.parents, skel64.end_site_parents, np.asarray(skel64.end_site_offsets, dtype),
-                       problem.mats[:b].astype(dtype), problem.trans[:b].astype(dtype))
+            np_args = lambda b=b, dtype=dtype: (  # noqa: E731 -- built when the row runs (host copies)
+                skel64.parents, skel64.end_site_parents, np.asarray(skel64.end_site_offsets, dtype),
+                problem.mats[:b].astype(dtype), problem.trans[:b].astype(dtype))
             for impl, fn, args, acc, n, note in (
                     (_FK_REF, ours(), q_in, (lambda out, b=b: ref.record(b, *_outputs(out)))
                      if dtype == "float64" else e, None, "jit(vmap(forward_kinematics)), wxyz [B,31,4]"),
@@ -222,8 +270,9 @@ def run_fk(config) -> list[Table]:
                      "vectorized over the batch, loop over joints, [B,31,3,3]"),
                     (_FLOOR, _memory_floor, q_in, lambda _: "—", None,
                      "jit of reading the inputs and writing fresh outputs of FK's shapes: no FK can beat it")):
-                run.add(impl, dtype, b, lambda: _row(run, impl, fn, args, dtype, b, acc, note, n),
-                        peer=not impl.startswith("jaxanim") and impl != _FLOOR)
+                run.add(impl, dtype, b, lambda: _row(run, impl, fn, args() if callable(args) else args, dtype, b, acc,
+                                                     note, n), peer=not impl.startswith("jaxanim") and impl != _FLOOR,
+                        max_batch=_HOST_MAX_BATCH if config.accelerator and impl == "numpy" else None)
             if pin is not None and dtype == dtypes[0]:
                 n, qs, k = _pin_inputs(run, problem, b)
                 acc = lambda _, b=b: _max_err(zip(pinocchio_peer.positions(pin, qs[:k]),  # noqa: E731
@@ -273,7 +322,7 @@ _PIN_JAC = "Pinocchio"
 
 def run_jacobian(config) -> list[Table]:
     """The ``jacobian`` benchmark (see the module docstring)."""
-    batches = config.batches_for(JACOBIAN_BATCHES)
+    batches = config.batches_for(JACOBIAN_BATCHES, JACOBIAN_ACCELERATOR_BATCHES)
     sites = JACOBIAN_SITES
     description = (
         f"Geometric Jacobian `[5, 6, 96]` of {', '.join(f'`{s}`' for s in sites)} on the CMU skeleton (poses of `fk`): "

@@ -9,6 +9,7 @@ import dataclasses
 import functools
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -19,7 +20,7 @@ from jaxanim.skeleton import Motion, resample_at
 from .report import Row, Table, Target, sel, usable_cores
 from .timing import Runner
 
-__all__ = ["MatchingSizes", "run_matching", "synthetic_database"]
+__all__ = ["ACCELERATOR_SIZES", "MatchingSizes", "crowd_inputs", "run_matching", "synthetic_database"]
 
 _SEARCH = "jaxanim matching.search (vmap)"
 _KDTREE = "scipy cKDTree.query (k=1)"
@@ -31,13 +32,20 @@ _CROWD = "jaxanim matching.motion_matching (vmap)"
 class MatchingSizes:
     """Sizes (``--quick`` and tests shrink them): the walk's speeds and frames per speed (the database holds
     ``2 x speeds x frames`` rows with the mirror images), the search's agent batches, the crowd's agents (0: no
-    crowd table) and seconds."""
+    crowd table) and seconds; the host peers search up to ``peer_max_batch`` agents (``None``: every batch)."""
 
     speeds: tuple[float, ...] = tuple(np.round(np.linspace(0.6, 1.6, 21), 3))
     frames_per_speed: int = 2400
     batches: tuple[int, ...] = (1024,)
     crowd: int = 1024
     crowd_seconds: float = 10.0
+    peer_max_batch: int | None = None
+
+
+#: ``--gpu`` on a machine with an accelerator: searches of 1,024 and 16,384 agents, a crowd of 16,384; the host
+#: peers (cKDTree, NumPy) search at 1,024 only (their time per query does not depend on the batch), so that the
+#: section's time budget reaches the crowd.
+ACCELERATOR_SIZES = MatchingSizes(batches=(1024, 16384), crowd=16384, peer_max_batch=1024)
 
 
 @functools.lru_cache(maxsize=4)
@@ -158,26 +166,30 @@ def _search_table(config, sz: MatchingSizes) -> Table:
                        note=f"{b * N * D * 2 / tm.median / 1e9:.1f} GFLOP/s in the distance products")
 
     for b in config.batches_for(sz.batches):
-        run.add(_NUMPY, "float64", b, lambda: numpy_row(b), peer=True)
-        run.add(_KDTREE, "float64", b, lambda: kd_row(b), peer=True)
+        run.add(_NUMPY, "float64", b, lambda: numpy_row(b), peer=True, max_batch=sz.peer_max_batch)
+        run.add(_KDTREE, "float64", b, lambda: kd_row(b), peer=True, max_batch=sz.peer_max_batch)
         for dt in config.dtypes:
             run.add(_SEARCH, dt, b, lambda: jax_row(b, dt))
     return table
 
 
-def _crowd_inputs(n: int, seconds: float, mean_speed: float, seed: int = 0) -> matching.ControlInput:
-    """``n`` inputs of 3 keys: a random heading and speed, a turn of up to +-120 degrees at a random time."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(n):
-        yaw0 = rng.uniform(-np.pi, np.pi)
-        yaw1 = yaw0 + rng.uniform(-2.1, 2.1)
-        s0, s1 = mean_speed * rng.uniform(0.7, 1.3, 2)
-        t1 = rng.uniform(0.3, 0.7) * seconds
-        v = [s0 * np.array([np.sin(yaw0), np.cos(yaw0)]), s0 * np.array([np.sin(yaw0), np.cos(yaw0)]),
-             s1 * np.array([np.sin(yaw1), np.cos(yaw1)])]
-        out.append(matching.control_input([0.0, t1, t1 + 1.0], v))
-    return jax.tree.map(lambda *x: jnp.stack(x), *out)
+def crowd_inputs(n: int, seconds: float, mean_speed: float, seed: int = 0) -> matching.ControlInput:
+    """``n`` agents' inputs of 3 keys, batched ``[n, 3]``: a random heading and speed, then a turn of up to ±120°
+    (about 2.1 rad) to another speed over 1 s from a random time. Agent ``i``'s five draws are the ``i``-th five of
+    the seeded stream (the inputs of ``n`` agents are a prefix of any larger crowd's), vectorised over the agents:
+    each equals ``matching.control_input`` of its keys (the velocity's direction as the facing, unwrapped)."""
+    u = np.random.default_rng(seed).random((n, 5))  # what rng.uniform(lo, hi) draws, one after another
+    yaw0 = -np.pi + (np.pi - -np.pi) * u[:, 0]
+    yaw1 = yaw0 + (-2.1 + (2.1 - -2.1) * u[:, 1])
+    s0, s1 = (mean_speed * (0.7 + (1.3 - 0.7) * u[:, k]) for k in (2, 3))
+    t1 = (0.3 + (0.7 - 0.3) * u[:, 4]) * seconds
+    heading = lambda yaw, s: s[:, None] * np.stack([np.sin(yaw), np.cos(yaw)], axis=-1)  # noqa: E731
+    v = np.stack([heading(yaw0, s0), heading(yaw0, s0), heading(yaw1, s1)], axis=1)  # [n, 3, 2]
+    times = np.stack([np.zeros(n), t1, t1 + 1.0], axis=1)
+    yaw = np.unwrap(np.arctan2(v[..., 0], v[..., 1]), axis=1)
+    one = matching.control_input([0.0, 1.0, 2.0], np.ones((3, 2)))  # the structure (checks hold by construction)
+    return eqx.tree_at(lambda c: (c.times, c.velocity, c.yaw), one,
+                       tuple(jnp.asarray(x, one.times.dtype) for x in (times, v, yaw)))
 
 
 def _crowd_table(config, sz: MatchingSizes) -> Table:
@@ -198,7 +210,7 @@ def _crowd_table(config, sz: MatchingSizes) -> Table:
             "No peer: the search table compares the search."),
         targets=[Target("crowd ≤ 33 ms per frame (real time at 30 fps)", sel(_CROWD), 33e3 / n)])
     run = Runner(config, table)
-    inputs = _crowd_inputs(n, sz.crowd_seconds, float(db.mean_speed))
+    inputs = crowd_inputs(n, sz.crowd_seconds, float(db.mean_speed))
 
     def row(dtype: str) -> Row:
         d = db if dtype == "float64" else synthetic_database(sz.speeds, sz.frames_per_speed, dtype)
@@ -226,6 +238,6 @@ def _crowd_table(config, sz: MatchingSizes) -> Table:
 
 def run_matching(config, sizes: MatchingSizes | None = None) -> list[Table]:
     """The ``matching`` benchmark (see the module docstring); ``sizes`` shrinks it for tests."""
-    sz = sizes or (MatchingSizes(speeds=(0.8, 1.2), frames_per_speed=300, batches=(8,), crowd=8, crowd_seconds=2.0)
-                   if config.quick else MatchingSizes())
+    sz = sizes or config.pick(MatchingSizes(), accelerator=ACCELERATOR_SIZES, quick=MatchingSizes(
+        speeds=(0.8, 1.2), frames_per_speed=300, batches=(8,), crowd=8, crowd_seconds=2.0))
     return [_search_table(config, sz)] + ([_crowd_table(config, sz)] if sz.crowd > 0 else [])

@@ -16,9 +16,10 @@ from solvers.problems import LQProblem
 
 from .peers import crocoddyl_oc as co, require
 from .report import Row, Table, Target, format_seconds, sel
-from .timing import Runner, Timing, status_counts, time_call
+from .timing import Runner, Timing, row_limits, status_counts, time_call
 
-__all__ = ["OCSizes", "initial_states", "make_dare_systems", "make_lq", "riccati_residual", "run_oc", "swing_problem"]
+__all__ = ["ACCELERATOR_SIZES", "ACCELERATOR_TABLES", "OCSizes", "initial_states", "make_dare_systems", "make_lq",
+           "riccati_residual", "run_oc", "swing_problem"]
 
 SEED = 0
 UNICYCLE_X0 = (-1.0, -1.0, 1.0)
@@ -38,7 +39,8 @@ _SCIPY = "scipy solve_discrete_are (loop)"
 
 @dataclasses.dataclass(frozen=True)
 class OCSizes:
-    """Problem sizes (tests shrink them); ``config.batches`` overrides the batches, ``swing_T=None`` keeps 100."""
+    """Problem sizes (tests shrink them); ``config.batches`` overrides the batches, ``swing_T=None`` keeps 100;
+    ``swing_peer_s`` bounds each Crocoddyl swing-up loop's seconds (``None``: the row budget, ``max_row_s``)."""
 
     unicycle_T: int = 200
     lqr_n: int = 37
@@ -54,6 +56,15 @@ class OCSizes:
     swing_methods: tuple[str, ...] = ("ilqr", "ddp")
     swing_fixed: bool = True
     swing_T: int | None = None
+    swing_peer_s: float | None = None
+
+
+#: ``--gpu`` on a machine with an accelerator: DARE of 1,024 to 10^5 systems, swing-ups of 16,384 (adaptive solves
+#: only: each batch and method compiles again; the Crocoddyl loops on the host for 3 s each), and only the batched
+#: tables (:data:`ACCELERATOR_TABLES`): the unicycle and LQ tables time one solve.
+ACCELERATOR_SIZES = OCSizes(dare_batches=(1024, 10_000, 100_000), swing_batches=(16384,), swing_fixed=False,
+                            swing_peer_s=3.0)
+ACCELERATOR_TABLES = ("dare", "swing_up", "compile")
 
 
 def make_lq(n: int = 37, m: int = 12, T: int = 100, seed: int = SEED) -> dict[str, np.ndarray]:
@@ -132,8 +143,9 @@ def _croc_single(run: Runner, impl: str, problem, solver: str, maxiter: int, acc
     xs0 = problem.rollout(us0)
     s = getattr(co.load_crocoddyl(), solver)(problem)
     ok = s.solve(xs0, us0, maxiter, True, 1e-9)
+    limit, fewest = row_limits(run.config)
     tm = time_call(s.solve, xs0, us0, maxiter, True, 1e-9, repeats=max(run.config.repeats, 15), warmup=0, number=1,
-                   max_total_s=run.config.max_row_s)
+                   max_total_s=limit, min_samples=fewest)
     its, cost, slowest = int(s.iter), float(s.cost), max(tm.all)
     note = (f"{its} iteration{'s' if its != 1 else ''}, {format_seconds(tm.median / max(its, 1))} / iteration, cost "
             f"{cost:.12g}; {what}; {tm.samples} single-call samples: min {format_seconds(tm.min)}, median "
@@ -344,7 +356,8 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
             f"q+ = q + dt v+, dt = {float(prob.args['dt']):g}; the problems' own explicit Euler has no C++ Crocoddyl "
             f"counterpart, nor has a damped joint), quadratic cost to upright; from {big} seeded starts "
             f"({_STARTS[name]}), zero controls, ≤ {max_steps} iterations. jaxanim: `jax.jit(jax.vmap(solve))` over the "
-            f"first `batch` starts, adaptive and `fixed_steps=True` (a scan of {max_steps}; finished problems frozen). "
+            "first `batch` starts, " + (f"adaptive and `fixed_steps=True` (a scan of {max_steps}; finished problems "
+                                        "frozen). " if sz.swing_fixed else "adaptive (`while_loop`). ") +
             "Crocoddyl: C++ models only (the Pinocchio "
             "model of `benchmarks.peers.crocoddyl_oc.pinocchio_model`, DifferentialActionModelFreeFwdDynamics + "
             f"IntegratedActionModelEuler, ResidualModelState / Control costs{pinned}), a Python loop of `solve` over "
@@ -375,12 +388,13 @@ def _swing_table(config, sz: OCSizes, name: str) -> Table:
         s.th_stop = SWING_STOP
         us0 = [np.zeros(pb.runningModels[0].nu)] * T
         limit, solved, t0 = min(big, config.loop_cap), [], time.perf_counter()
+        row_s = min(row_limits(config)[0], sz.swing_peer_s or np.inf)
         for x0 in x0s[:limit]:  # (cost, converged, backward passes, final angle, seconds) per start
             t1, pb.x0 = time.perf_counter(), x0
             ok = s.solve(pb.rollout(us0), us0, max_steps, True)
             solved.append((float(s.cost), bool(ok), min(int(s.iter) + 1, max_steps), float(s.xs[-1][ai]),
                            time.perf_counter() - t1))
-            if time.perf_counter() - t0 > config.max_row_s and len(solved) >= 2:
+            if time.perf_counter() - t0 > row_s and len(solved) >= 2:
                 break
         total = time.perf_counter() - t0
         cost, conv, its, angle, secs = (np.asarray(c) for c in zip(*solved))
@@ -437,18 +451,22 @@ def _compile_table(tables: Sequence[Table]) -> Table:
 TABLES = ("unicycle", "lqr", "dare", "swing_up", "compile")
 
 
-def run_oc(config, sizes: OCSizes | None = None, tables: Sequence[str] = TABLES) -> list[Table]:
-    """The ``oc`` benchmark (see the module docstring); ``sizes`` and ``tables`` shrink it for tests."""
+def run_oc(config, sizes: OCSizes | None = None, tables: Sequence[str] | None = None) -> list[Table]:
+    """The ``oc`` benchmark (see the module docstring); ``sizes`` and ``tables`` (default :data:`TABLES`, or
+    :data:`ACCELERATOR_TABLES` under ``--gpu``) shrink it for tests."""
+    tables = config.pick(TABLES, accelerator=ACCELERATOR_TABLES) if tables is None else tables
     unknown = set(tables) - set(TABLES)
     if unknown:
         raise ValueError(f"tables: unknown {sorted(unknown)}; expected some of {TABLES}")
-    sz = sizes or OCSizes()
+    sz = sizes or config.pick(OCSizes(), accelerator=ACCELERATOR_SIZES)
     config.float64_only("oc", "Crocoddyl and scipy are float64")
-    # the swing-ups run first: once a Python action model exists (the unicycle table's), Crocoddyl runs every
-    # problem of the process on one thread; the tables keep their order
+    # the DARE table (scipy only) and then the swing-ups run first: once a Python action model exists (the unicycle
+    # table's), Crocoddyl runs every problem of the process on one thread; within a section time budget the
+    # batched tables come first. The tables keep their order.
+    dare = [_dare_table(config, sz)] if "dare" in tables else []
     swing = [_swing_table(config, sz, name) for name in sz.swing_problems] if "swing_up" in tables else []
-    out = [make(config, sz) for key, make in (("unicycle", _unicycle_table), ("lqr", _lqr_table),
-                                              ("dare", _dare_table)) if key in tables] + swing
+    out = [make(config, sz) for key, make in (("unicycle", _unicycle_table), ("lqr", _lqr_table)) if key in tables]
+    out += dare + swing
     if "compile" in tables and any(r.compile_s for t in out for r in t.rows):
         out.append(_compile_table(out))
     return out

@@ -21,8 +21,8 @@ from .peers import mujoco_physics as mp
 from .report import Row, Table, Target, sel, usable_cores
 from .timing import Runner, Timing, status_counts
 
-__all__ = ["CLIP", "DT", "PhysicsSizes", "StandingCharacter", "double_pendulum", "root_velocities", "run_physics",
-           "standing_character"]
+__all__ = ["ACCELERATOR_SIZES", "CLIP", "DT", "PhysicsSizes", "StandingCharacter", "double_pendulum",
+           "root_velocities", "run_physics", "standing_character"]
 
 CLIP = "bvh/cmu_01_01_trim300.bvh"
 STAND_FRAME = 200  # both feet flat, center of mass over them
@@ -50,6 +50,25 @@ class PhysicsSizes:
     stand_seconds: float = 1.0
     pendulum_seconds: float = 1.0
     pendulum_dts: tuple[float, ...] = (1 / 600, 1 / 1200)
+
+
+#: ``--gpu`` on a machine with an accelerator: the throughput table at 1,024 and 65,536 characters (each batch
+#: compiles every row again, so the ladder is short) in the two contact models with targets, and MJX on the same
+#: device at 65,536; the unbatched standing and pendulum tables (one character: latency, not throughput) are left
+#: to the CPU run.
+ACCELERATOR_SIZES = PhysicsSizes(batches=(1024, 65536), mjx_batches=(65536,), contact_models=("complementarity:8",
+                                                                                               "penalty"),
+                                 stand_seconds=0.0, pendulum_seconds=0.0)
+
+
+#: Issue 29's targets on one H200 (``--gpu`` on an accelerator): µs per character-step at the best batch.
+ACCELERATOR_TARGETS = [
+    Target("accelerator: penalty contact ≥ 3 M character-steps/s at the best batch (≤ 0.333 µs per step)",
+           sel("jaxanim rollout (penalty)"), 1 / 3),
+    Target("accelerator: penalty contact ≥ MJX's character-steps/s at batch 65536 on the same device (speedup ≥ 1x)",
+           sel("jaxanim rollout (penalty)", batch=65536), 1.0, versus=sel(_MJX, batch=65536)),
+    Target("accelerator: complementarity on 8 points ≥ 1 M character-steps/s at the best batch (≤ 1 µs per step)",
+           sel("jaxanim rollout (complementarity:8)"), 1.0)]
 
 
 def clearance(state, body, local, radius) -> jax.Array:
@@ -139,7 +158,8 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
             f"`batch` characters (MJX: {sz.mjx_steps}), dt = 1/{round(1 / DT)} s. jaxanim: "
             "`jax.jit(jax.vmap(physics.rollout))`; MuJoCo C: a Python loop of `mj_step` per character (each `MjData` "
             f"reset to its start state every call), and `mujoco.rollout.rollout` on {nthread} threads (one `MjData` "
-            "per usable core, shared with the other rows); MJX: `jax.jit(jax.vmap(scan of mjx.step))` on the CPU. "
+            f"per usable core, shared with the other rows); MJX: `jax.jit(jax.vmap(scan of mjx.step))` on the same "
+            f"device as jaxanim ({jax.default_backend()}). "
             "Accuracy: character 0's body positions after the call vs MuJoCo C's (different contact and PD models: a "
             "difference, not an error)."),
         targets=[Target("penalty contact at batch 1024 at most 0.5x MuJoCo C's time per character-step (rollout on "
@@ -150,7 +170,8 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
                         versus=sel((_MJ_ROLLOUT, _MJ_LOOP), batch=1024)),
                  Target("one character's step within 5x MuJoCo C mj_step (speedup ≥ 0.2x)", sel("jaxanim", batch=1),
                         0.2, versus=sel(_MJ_LOOP, batch=1)),
-                 Target("rollout compile ≤ 5 s (jaxanim rows)", sel("jaxanim"), 5.0, "compile", worst=True)])
+                 Target("rollout compile ≤ 5 s (jaxanim rows)", sel("jaxanim"), 5.0, "compile", worst=True)]
+        + (ACCELERATOR_TARGETS if config.accelerator else []))
     run = Runner(config, table)
 
     @functools.cache
@@ -183,7 +204,8 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
     def mjx_row(b: int) -> Row:
         qpos, tm, comp = run.jax(*mp.mjx_rollout(mujoco(), sz.mjx_steps, b))
         return run.row(_MJX, "float64", b, tm, b * sz.mjx_steps, comp, diff(
-            mujoco().positions(qpos=np.asarray(qpos[0])), sz.mjx_steps), note=f"{sz.mjx_steps} steps per call, CPU")
+            mujoco().positions(qpos=np.asarray(qpos[0])), sz.mjx_steps),
+            note=f"{sz.mjx_steps} steps per call, {jax.default_backend()}")
 
     def jax_row(model: str, b: int, impl: str) -> Row:
         ch = standing_character(config.data_dir, model)
@@ -200,11 +222,11 @@ def _throughput_table(config, sz: PhysicsSizes) -> Table:
     for b in batches:
         run.add(_MJ_LOOP, "float64", b, lambda: mj_loop_row(b), peer=True)
         run.add(_MJ_ROLLOUT, "float64", b, lambda: mj_rollout_row(b), peer=True)
-        if b in mjx_batches:
-            run.add(_MJX, "float64", b, lambda: mjx_row(b), peer=True)
         for model in sz.contact_models:
             impl = f"jaxanim rollout ({model})"
             run.add(impl, "float64", b, lambda: jax_row(model, b, impl))
+        if b in mjx_batches:
+            run.add(_MJX, "float64", b, lambda: mjx_row(b), peer=True)
     if any(r.implementation == _MJ_ROLLOUT and r.measured for r in table.rows):
         from mujoco import rollout as mj_rollout
 
@@ -331,8 +353,9 @@ def run_physics(config, sizes: PhysicsSizes | None = None, tables: tuple[str, ..
     unknown = set(tables) - set(TABLES)
     if unknown:
         raise ValueError(f"tables: unknown {sorted(unknown)}; expected some of {TABLES}")
-    sz = sizes or (PhysicsSizes(steps_per_call=5, mjx_steps=2, mjx_batches=(max(config.batches_for(BATCHES)),),
-                                stand_seconds=0.1, pendulum_seconds=0.2) if config.quick else PhysicsSizes())
+    sz = sizes or config.pick(PhysicsSizes(), accelerator=ACCELERATOR_SIZES, quick=PhysicsSizes(
+        steps_per_call=5, mjx_steps=2, mjx_batches=(max(config.batches_for(BATCHES)),), stand_seconds=0.1,
+        pendulum_seconds=0.2))
     config.float64_only("physics", "MuJoCo is float64")
     out: list[Table] = []
     path = config.data_file(CLIP)

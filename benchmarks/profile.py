@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from .report import Row, Table, format_seconds
-from .timing import compile_time, sample_call
+from .timing import budget_spent, compile_time, sample_call
 
 __all__ = ["KERNELS", "Instruction", "hlo_instructions", "kind_of", "profile_events", "run_profile"]
 
@@ -367,6 +367,9 @@ def run_profile(config) -> list[Table]:
     for k in KERNELS:
         batch = 8 if config.quick and k.batch > 1 else k.batch
         if not config.selects(k.name):
+            continue
+        if spent := budget_spent(config):
+            table.rows.append(Row(k.name, k.dtype, batch, skipped=spent))
             continue
         config.log(f"profile: {k.name} ({k.dtype}, batch {batch})")
         try:

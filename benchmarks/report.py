@@ -11,7 +11,8 @@ import platform
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["Row", "Table", "Target", "collect_environment", "format_seconds", "render_report", "render_table", "sel"]
+__all__ = ["Row", "Table", "Target", "collect_environment", "describe_device", "format_seconds", "render_report",
+           "render_table", "sel"]
 
 _DASH = "—"
 
@@ -220,16 +221,43 @@ def usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def collect_environment() -> dict[str, str]:
-    """Machine and library facts for the report header (CPU, cores, devices, versions, x64)."""
+def describe_device() -> str:
+    """What JAX runs on: its backend, the devices' count and kind, and an accelerator's memory, e.g. ``gpu: 1 ×
+    NVIDIA H200, 139.8 GiB`` or ``cpu: 1 × cpu (no accelerator)``."""
     import jax
 
-    env = {"date": utc_now(), "CPU": _cpu_model(),
+    devices = jax.devices()
+    kinds = ", ".join(sorted({getattr(d, "device_kind", "?") for d in devices}))
+    text = f"{jax.default_backend()}: {len(devices)} × {kinds}"
+    if jax.default_backend() == "cpu":
+        return text + " (no accelerator)"
+    try:
+        limit = (devices[0].memory_stats() or {}).get("bytes_limit")
+    except Exception:  # noqa: BLE001 -- memory_stats is optional per backend
+        limit = None
+    return text + (f", {limit / 2**30:.1f} GiB" if limit else "")
+
+
+def _jax_plugins() -> dict[str, str]:
+    """Versions of the installed JAX backend plugins (``jax-cuda12-plugin``, ``jax-cuda12-pjrt``, ``libtpu``...)."""
+    names = {d.metadata["Name"].lower().replace("_", "-") for d in importlib.metadata.distributions()
+             if d.metadata["Name"]}
+    plugins = sorted(n for n in names if n.startswith(("jax-cuda", "jax-rocm", "libtpu")))
+    return {n: _version(n) for n in plugins}
+
+
+def collect_environment() -> dict[str, str]:
+    """Machine and library facts for the report header (device, CPU, cores, devices, versions, x64)."""
+    import jax
+
+    env = {"date": utc_now(), "device": describe_device(), "CPU": _cpu_model(),
            "cores": f"{os.cpu_count()} logical, {usable_cores()} usable by this process",
            "devices": ", ".join(f"{d.platform}:{d.id} ({getattr(d, 'device_kind', '?')})" for d in jax.devices()),
            "Python": platform.python_version()}
-    env.update({d: _version(d) for d in ("jax", "jaxlib", "equinox", "optimistix", "numpy", "scipy", "jaxopt",
-                                         "crocoddyl", "mujoco", "mujoco-mjx")})
+    env.update({d: _version(d) for d in ("jax", "jaxlib")})
+    env.update(_jax_plugins())
+    env.update({d: _version(d) for d in ("equinox", "optimistix", "numpy", "scipy", "jaxopt", "crocoddyl", "mujoco",
+                                         "mujoco-mjx")})
     env.update({"pin (Pinocchio)": _version("pin"), "x64": str(bool(jax.config.jax_enable_x64))})
     return env | ({"XLA_FLAGS": os.environ["XLA_FLAGS"]} if os.environ.get("XLA_FLAGS") else {})
 

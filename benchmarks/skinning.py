@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanim import default_clip_path, read_bvh, skinning
+from jaxanim._linalg import check_precision
 from jaxanim.app._simulate import _looped_motion
 from jaxanim.rotations._numpy import quat_mul as _qmul
 from jaxanim.rotations._numpy import quat_to_matrix as _qmat
@@ -22,7 +23,7 @@ from jaxanim.skinning._skin import _frames_args, _frames_kernel
 from .report import Row, Table, Target, sel
 from .timing import Runner
 
-__all__ = ["SkinningSizes", "numpy_dqs", "numpy_lbs", "run_skinning"]
+__all__ = ["ACCELERATOR_SIZES", "SkinningSizes", "numpy_dqs", "numpy_lbs", "run_skinning"]
 
 _JAX = {m: f"jaxanim skin_motion ({m.upper()})" for m in ("lbs", "dqs")}
 _NUMPY = {m: f"numpy, vectorised ({m.upper()})" for m in ("lbs", "dqs")}
@@ -31,10 +32,17 @@ _CHUNK = 32  # frames per NumPy step (bounds its temporaries to ~100 MB at 10k v
 
 @dataclasses.dataclass(frozen=True)
 class SkinningSizes:
-    """Sizes (``--quick`` and tests shrink them): the mesh's target vertex count and the frames."""
+    """Sizes (``--quick`` and tests shrink them): the mesh's target vertex count and the frames; the NumPy peers
+    (and the accuracy reference) run on the first ``peer_frames`` frames (``None``: all)."""
 
     vertices: int = 10_000
     frames: int = 1000
+    peer_frames: int | None = None
+
+
+#: ``--gpu`` on a machine with an accelerator: 10^4 vertices x 10^4 frames; NumPy on the first 1,000 frames (its
+#: time per vertex-frame does not depend on the frame count).
+ACCELERATOR_SIZES = SkinningSizes(vertices=10_000, frames=10_000, peer_frames=1000)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -110,7 +118,7 @@ def _mesh_for(skel, target: int) -> skinning.Mesh:
     return skinning.capsule_mesh(skel, sides=sides, rings=rings, cap_rings=cap)
 
 
-def _description(method: str, V: int, F: int, T: int, K: int) -> str:
+def _description(method: str, V: int, F: int, T: int, K: int, peer_frames: int) -> str:
     common = (f"The shipped walk (21 joints) looped to {F} frames, skinned with a procedural capsule mesh "
               f"(`skinning.capsule_mesh`, {V} vertices, {T} triangles) and the distance-to-bone heuristic weights "
               f"(K = {K}). One timed call skins every frame (the batch column counts the frames); **µs / char is per "
@@ -129,34 +137,37 @@ def _description(method: str, V: int, F: int, T: int, K: int) -> str:
                f"over the vertices and {_CHUNK} frames at a time. jaxanim's DQS blend is one matrix product [V, P] x "
                "[P, 8] per frame over the P (largest-weight joint, joint) pairs that occur in the weights (one GEMM "
                "over all frames under `vmap`), then the same normalisation and sandwich.")
-    return common + how + (" Accuracy: the largest distance from the float64 NumPy result (the reference row).")
+    some = f" on the first {peer_frames} frames (NumPy's rows are timed on those)" if peer_frames < F else ""
+    return common + how + f" Accuracy: the largest distance from the float64 NumPy result (the reference row){some}."
 
 
 def run_skinning(config, sizes: SkinningSizes | None = None) -> list[Table]:
     """The ``skinning`` benchmark (see the module docstring): a table for LBS and one for DQS; ``sizes`` shrinks
     it for tests."""
-    sz = sizes or (SkinningSizes(vertices=500, frames=8) if config.quick else SkinningSizes())
+    sz = sizes or config.pick(SkinningSizes(), accelerator=ACCELERATOR_SIZES,
+                              quick=SkinningSizes(vertices=500, frames=8))
     skel, walk = read_bvh(default_clip_path())[:2]
     motion = _looped_motion(walk, sz.frames)
     mesh = _mesh_for(skel, sz.vertices)
     w = skinning.heuristic_weights(skel, mesh)
     V, F, K = mesh.num_vertices, motion.num_frames, w.k
-    np_args = (skel.parents, np.asarray(skel.offsets, np.float64), np.asarray(motion.rotations, np.float64),
-               np.asarray(motion.translations, np.float64), np.asarray(mesh.vertices, np.float64),
+    pf = min(F, sz.peer_frames or F)
+    np_args = (skel.parents, np.asarray(skel.offsets, np.float64), np.asarray(motion.rotations[:pf], np.float64),
+               np.asarray(motion.translations[:pf], np.float64), np.asarray(mesh.vertices, np.float64),
                np.asarray(w.joints), np.asarray(w.weights, np.float64))
     tables = []
     for method in ("lbs", "dqs"):
         table = Table(
             f"skinning-{method}", f"Skinning ({method.upper()}): {V} vertices x {F} frames of the shipped walk",
-            accuracy_label="max abs err (m)", description=_description(method, V, F, mesh.num_faces, K),
+            accuracy_label="max abs err (m)", description=_description(method, V, F, mesh.num_faces, K, pf),
             targets=[Target(f"jaxanim {method.upper()} at least as fast as NumPy (float64)",
                             sel(_JAX[method], "float64"), 1.0, versus=sel(_NUMPY[method], "float64"))])
-        _fill(config, table, method, skel, motion, mesh, w, np_args)
+        _fill(config, table, method, skel, motion, mesh, w, np_args, pf)
         tables.append(table)
     return tables
 
 
-def _fill(config, table: Table, method: str, skel, motion, mesh, w, np_args) -> None:
+def _fill(config, table: Table, method: str, skel, motion, mesh, w, np_args, pf: int) -> None:
     run = Runner(config, table)
     V, F = mesh.num_vertices, motion.num_frames
     numpy_fn = numpy_lbs if method == "lbs" else numpy_dqs
@@ -170,20 +181,23 @@ def _fill(config, table: Table, method: str, skel, motion, mesh, w, np_args) -> 
     def numpy_row() -> Row:
         out, tm = run.python(numpy_fn, *np_args)
         ref[:] = [out]
-        return run.row(_NUMPY[method], "float64", F, tm, V * F, accuracy="reference",
-                       note=f"{V * F / tm.median / 1e6:.1f} M vertex-frames/s")
+        return run.row(_NUMPY[method], "float64", F, tm, V * pf, accuracy="reference",
+                       note=f"{V * pf / tm.median / 1e6:.1f} M vertex-frames/s"
+                       + (f"; timed on the first {pf} of {F} frames" if pf < F else ""))
 
-    def jax_row(dtype: str) -> Row:
+    def jax_row(dtype: str, precision: str = "highest") -> Row:
         def cast(tree):
             return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
 
-        fn = jax.jit(functools.partial(_frames_kernel, method=method))
+        fn = jax.jit(functools.partial(_frames_kernel, method=method, precision=check_precision("precision", precision)))
         args = _frames_args(cast(skel), cast(motion), cast(mesh), cast(w), method)
         out, tm, comp = run.jax(fn, *args)
-        err = float(np.max(np.linalg.norm(np.asarray(out, np.float64) - reference(), axis=-1)))
-        return run.row(_JAX[method], dtype, F, tm, V * F, comp, err,
-                       note=f"{V * F / tm.median / 1e6:.1f} M vertex-frames/s")
+        err = float(np.max(np.linalg.norm(np.asarray(out[:pf], np.float64) - reference(), axis=-1)))
+        return run.row(_JAX[method] + ("" if precision == "highest" else f" (precision={precision!r})"), dtype, F, tm,
+                       V * F, comp, err, note=f"{V * F / tm.median / 1e6:.1f} M vertex-frames/s")
 
     run.add(_NUMPY[method], "float64", F, numpy_row, peer=True)
     for dt in config.dtypes:
         run.add(_JAX[method], dt, F, lambda d=dt: jax_row(d))
+    if config.accelerator and "float32" in config.dtypes:  # the fast path a user may choose (TF32 on NVIDIA GPUs)
+        run.add(_JAX[method] + " (precision='default')", "float32", F, lambda: jax_row("float32", "default"))

@@ -19,7 +19,8 @@ import solvers
 from .peers import PeerUnavailable
 from .report import Row, Table
 
-__all__ = ["CompileStats", "Runner", "Timing", "compile_time", "sample_call", "status_counts", "time_call"]
+__all__ = ["CompileStats", "Runner", "Timing", "budget_spent", "compile_time", "row_limits", "sample_call",
+           "status_counts", "time_call"]
 
 _LONG_CALL_S = 1.0
 _CALL_BUDGET_FACTOR = 4.0  # a row is skipped when one call is expected to take > this x max_row_s
@@ -63,10 +64,10 @@ def _call_blocking(fn: Callable[..., Any], args: tuple, number: int) -> float:
 
 
 def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 7, warmup: int = 2, min_sample_s: float = 2e-3,
-              max_total_s: float | None = None, number: int | None = None) -> Timing:
+              max_total_s: float | None = None, number: int | None = None, min_samples: int = 3) -> Timing:
     """Median and min seconds of ``fn(*args)`` after ``warmup`` calls (one if it takes over a second); calls faster
     than ``min_sample_s`` run ``number`` times per sample (calibrated unless given); sampling stops past
-    ``max_total_s`` once 3 samples (or ``repeats``) were taken."""
+    ``max_total_s`` once ``min_samples`` (or ``repeats``) were taken."""
     if repeats < 1:
         raise ValueError(f"repeats: expected >= 1, got {repeats}")
     once = math.inf
@@ -82,21 +83,42 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 7, warmup: int 
         s = _call_blocking(fn, args, number)
         spent += s
         samples.append(s / number)
-        if max_total_s is not None and spent > max_total_s and i + 1 >= min(3, repeats):
+        if max_total_s is not None and spent > max_total_s and i + 1 >= min(min_samples, repeats):
             break
     return Timing(statistics.median(samples), min(samples), len(samples), number, tuple(samples))
 
 
+def row_limits(config: Any) -> tuple[float, int]:
+    """``(seconds, samples)``: how long a row may sample and the fewest samples it takes: ``max_row_s`` and 3, or
+    what is left of the section's time budget and 1 once that is shorter."""
+    limit = config.row_time_s() if hasattr(config, "row_time_s") else config.max_row_s
+    return limit, 3 if limit >= config.max_row_s else 1
+
+
 def sample_call(config: Any, fn: Callable[..., Any], args: tuple, first_s: float) -> Timing:
     """Time ``fn(*args)`` within ``config``'s budget after the caller's first call (``first_s``), which
-    is the first sample of a call over a second (more are taken while they fit in ``max_row_s``)."""
+    is the first sample of a call over a second (more are taken while they fit in ``max_row_s`` and the section's
+    time left: :func:`row_limits`)."""
+    limit, fewest = row_limits(config)
     if first_s <= _LONG_CALL_S:
-        return time_call(fn, *args, repeats=config.repeats, warmup=max(config.warmup - 1, 0),
-                         max_total_s=config.max_row_s)
+        return time_call(fn, *args, repeats=config.repeats, warmup=max(config.warmup - 1, 0), max_total_s=limit,
+                         min_samples=fewest)
     samples = [first_s]
-    while len(samples) < config.repeats and sum(samples) + samples[-1] <= config.max_row_s:
+    while len(samples) < config.repeats and sum(samples) + samples[-1] <= limit:
         samples.append(_call_blocking(fn, args, 1))
     return Timing(statistics.median(samples), min(samples), len(samples))
+
+
+def budget_spent(config: Any) -> str | None:
+    """The skipped reason of a row once the running section's time budget is spent, else ``None``."""
+    left = config.time_left() if hasattr(config, "time_left") else None
+    return None if left is None or left > 0 else f"not run (section time budget of {config.section_budget_s:g} s spent)"
+
+
+def _row_seconds(compile_s: float | None, call_s: float) -> float:
+    """What a row takes: its compile, a first call and the fewest samples (1 after a call over a second, else 3:
+    the first call, the calibrating call, one sample)."""
+    return (compile_s or 0.0) + call_s * (1 if call_s > _LONG_CALL_S else 3)
 
 
 def _first_line(exc: BaseException) -> str:
@@ -124,27 +146,53 @@ class Runner:
         return out, sample_call(self.config, fn, args, time.perf_counter() - t0)
 
     def _budget(self, impl: str, dtype: str | None, batch: int | None, max_batch: int | None) -> str | None:
-        prev = [r for r in self.table.rows if r.implementation == impl and r.dtype == dtype and r.measured
-                and r.batch is not None and batch is not None and r.batch < batch]
-        if not prev:
+        """Why the row should not run (time budget), or ``None``: the section's time is spent, or the previous
+        batch's row predicts a call over ``4 x max_row_s``, or the row is expected to end past the section's
+        deadline (from the previous batch's row, else the same batch's in another dtype, else the table's median
+        row: compile, first call and the fewest samples)."""
+        if spent := budget_spent(self.config):
+            return spent
+        left = self.config.time_left() if hasattr(self.config, "time_left") else None
+        budget_s = getattr(self.config, "section_budget_s", None)
+        timed = [r for r in self.table.rows if r.implementation == impl and r.measured and r.batch is not None
+                 and batch is not None and r.time_median_s is not None]
+        prev = [r for r in timed if r.dtype == dtype and r.batch < batch]
+        if prev:
+            last = max(prev, key=lambda r: r.batch)
+            if len(prev) >= 2 and all(r.success == 0 for r in prev):
+                return f"not run (time budget): 0 % success at batches {', '.join(str(r.batch) for r in prev)}"
+            est = last.time_median_s * batch / last.batch
+            if max_batch is not None and not self.config.quick and batch > max_batch:
+                return (f"not run above batch {max_batch} (time budget): ~{est:.0f} s per call expected from batch "
+                        f"{last.batch}")
+            budget = _CALL_BUDGET_FACTOR * self.config.max_row_s
+            if est > budget:
+                return (f"not run (time budget): ~{est:.0f} s per call expected from batch {last.batch}, over "
+                        f"{budget:.0f} s")
+            source = f"batch {last.batch}"
+            row_s = _row_seconds(last.compile_s, est)
+        elif left is None:
             return None
-        last = max(prev, key=lambda r: r.batch)
-        if len(prev) >= 2 and all(r.success == 0 for r in prev):
-            return f"not run (time budget): 0 % success at batches {', '.join(str(r.batch) for r in prev)}"
-        est = last.time_median_s * batch / last.batch
-        if max_batch is not None and not self.config.quick and batch > max_batch:
-            return (f"not run above batch {max_batch} (time budget): ~{est:.0f} s per call expected from batch "
-                    f"{last.batch}")
-        budget = _CALL_BUDGET_FACTOR * self.config.max_row_s
-        if est > budget:
-            return f"not run (time budget): ~{est:.0f} s per call expected from batch {last.batch}, over {budget:.0f} s"
+        elif twins := [r for r in timed if r.batch == batch and r.dtype != dtype]:  # the same batch, another dtype
+            last = max(twins, key=lambda r: _row_seconds(r.compile_s, r.time_median_s))
+            row_s, source = _row_seconds(last.compile_s, last.time_median_s), f"the {last.dtype} row"
+        else:  # no history: the table's median row so far
+            seen = sorted(_row_seconds(r.compile_s, r.time_median_s) for r in self.table.rows
+                          if r.measured and r.time_median_s is not None)
+            if not seen:
+                return None
+            row_s, source = seen[len(seen) // 2], "the median row of this table so far"
+        if left is not None and row_s > left:
+            return (f"not run (section time budget of {budget_s:g} s): ~{row_s:.0f} s expected from {source}, "
+                    f"{left:.0f} s left")
         return None
 
     def add(self, impl: str, dtype: str | None, batch: int | None, make: Callable[[], Row], *, peer: bool = False,
             max_batch: int | None = None) -> Row | None:
         """Append the row ``make()`` measures, or the reason it did not run; return it if measured. A missing
         peer (``ImportError``, :class:`~benchmarks.peers.PeerUnavailable`) is one skipped row for the
-        implementation; a failure is a ``failed:`` row, and later batches point to it."""
+        implementation; a failure is a ``failed:`` row, and later batches point to it. Each row is logged as it
+        starts and ends, and handed to ``config.on_row`` (the run's writer) once added."""
         if not self.config.selects(impl):
             return None
         key = (impl, dtype)
@@ -154,6 +202,7 @@ class Runner:
         if why := why or self._budget(impl, dtype, batch, max_batch):
             row = Row(impl, dtype, batch, skipped=why, is_peer=peer)
         else:
+            self.config.log(f"{self.table.name} {dtype} B={batch}: {impl}: running")
             try:
                 row = make()
                 row.is_peer = peer
@@ -167,6 +216,8 @@ class Runner:
                 self._failed[key] = f"failed at batch {batch} (see that row)"
         self._log(row)
         self.table.rows.append(row)
+        if (on_row := getattr(self.config, "on_row", None)) is not None:
+            on_row(self.table)
         return row if row.measured else None
 
     def _log(self, r: Row) -> None:

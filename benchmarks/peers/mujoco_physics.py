@@ -35,7 +35,9 @@ def load_mjx():
 
 class MujocoSim:
     """A MuJoCo model (``xml``) of a jaxanim model and ``B`` characters' initial states, at rest in the assembly pose
-    but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions in ``body_names`` order."""
+    but for ``root_velocities [B, 3]`` (world, m/s) of the free body ``root``; positions in ``body_names`` order.
+    The initial states are one state with each character's root velocity written in (no ``MjData`` per character),
+    and a character's ``MjData`` is made when first used: 65,536 characters cost a ``[B, nstate]`` array."""
 
     def __init__(self, xml: str, body_names: Sequence[str], root: int, root_velocities: np.ndarray):
         self.mujoco = mujoco = load_mujoco()
@@ -52,15 +54,28 @@ class MujocoSim:
         self.qpos0 = mujoco.MjData(self.model).qpos.copy()
         self.qvel0 = np.zeros((self.batch, self.model.nv))
         self.qvel0[:, self.root_dof:self.root_dof + 3] = v
-        self.datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
+        self._datas: dict[int, Any] = {}
         self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        self.initial_states = np.empty((self.batch, mujoco.mj_stateSize(self.model, self._spec)))
-        for i, state in enumerate(self.initial_states):
-            mujoco.mj_getState(self.model, self.reset(i, mujoco.MjData(self.model)), state, self._spec)
+        # the state vector is [time, qpos, qvel, ...] (mjtState's bit order): character i's is the rest state
+        # with its qvel written in
+        rest = np.empty(mujoco.mj_stateSize(self.model, self._spec))
+        d = mujoco.MjData(self.model)
+        mujoco.mj_resetData(self.model, d)
+        d.qpos[:] = self.qpos0
+        mujoco.mj_getState(self.model, d, rest, self._spec)
+        lo = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS)
+        self.initial_states = np.repeat(rest[None], self.batch, axis=0)
+        self.initial_states[:, lo:lo + self.model.nv] = self.qvel0
+
+    def data(self, i: int):
+        """Character ``i``'s own ``MjData`` (made on first use)."""
+        if i not in self._datas:
+            self._datas[i] = self.mujoco.MjData(self.model)
+        return self._datas[i]
 
     def reset(self, i: int, data=None):
         """Put character ``i``'s initial state into ``data`` (default its own ``MjData``)."""
-        d = self.datas[i] if data is None else data
+        d = self.data(i) if data is None else data
         self.mujoco.mj_resetData(self.model, d)
         d.qpos[:] = self.qpos0
         d.qvel[:] = self.qvel0[i]
@@ -82,7 +97,7 @@ class MujocoSim:
 
     def positions(self, i: int = 0, *, state: np.ndarray | None = None, qpos: np.ndarray | None = None) -> np.ndarray:
         """Body positions ``[nb, 3]`` (jaxanim order) of character ``i`` now, of a physics ``state`` or at ``qpos``."""
-        d = self.datas[i] if state is None and qpos is None else self.mujoco.MjData(self.model)
+        d = self.data(i) if state is None and qpos is None else self.mujoco.MjData(self.model)
         if state is not None:
             self.mujoco.mj_setState(self.model, d, np.asarray(state, float), self._spec)
         if qpos is not None:
@@ -91,20 +106,22 @@ class MujocoSim:
         return d.xpos[self.ids].copy()
 
 
-def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, Any]:
-    """``(jax.jit(jax.vmap(rollout)), batched mjx.Data)``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
-    character over the first ``batch`` characters' initial states (cast to the dtypes ``mjx.step``
-    returns: under x64 ``put_data`` makes int32 contact indices that ``step`` returns as int64)."""
+def mjx_rollout(sim: MujocoSim, nstep: int, batch: int) -> tuple[Callable, Any, jax.Array]:
+    """``(jax.jit(jax.vmap(rollout)), mjx.Data, qvel [batch, nv])``: ``nstep`` ``mjx.step`` in a ``lax.scan`` per
+    character from the first ``batch`` characters' initial states. The characters differ only in ``qvel``, so
+    one ``mjx.Data`` (character 0's after ``mj_forward``, cast to the dtypes ``mjx.step`` returns: under x64
+    ``put_data`` makes int32 contact indices that ``step`` returns as int64) is shared (``in_axes=None``) and each
+    character's starts as it with its ``qvel``; ``mjx.step`` recomputes everything else from ``qpos``, ``qvel`` and
+    the warm start (zero for every character)."""
     mjx = load_mjx()
-    mx, datas = mjx.put_model(sim.model), []
-    for i in range(batch):
-        d = sim.reset(i, sim.mujoco.MjData(sim.model))
-        sim.mujoco.mj_forward(sim.model, d)
-        datas.append(mjx.put_data(sim.model, d))
-    dx = jax.tree.map(lambda *a: jnp.stack(a), *datas)
-    dx = jax.tree.map(lambda a, s: jnp.asarray(a, s.dtype), dx, jax.eval_shape(mjx.step, mx, datas[0]))
+    mx = mjx.put_model(sim.model)
+    d = sim.reset(0, sim.mujoco.MjData(sim.model))
+    sim.mujoco.mj_forward(sim.model, d)
+    dx = mjx.put_data(sim.model, d)
+    dx = jax.tree.map(lambda a, s: jnp.asarray(a, s.dtype), dx, jax.eval_shape(mjx.step, mx, dx))
 
-    def one(d):
+    def one(d0, qvel):
+        d = d0.replace(qvel=qvel)
         return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), d, None, length=nstep)[0].qpos
 
-    return jax.jit(jax.vmap(one)), dx
+    return jax.jit(jax.vmap(one, in_axes=(None, 0))), dx, jnp.asarray(sim.qvel0[:batch], dx.qvel.dtype)
