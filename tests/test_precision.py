@@ -205,6 +205,20 @@ def test_physics_character_and_tracking_state_highest():
                                                  result.corrections))
 
 
+def test_robots_state_highest():
+    """FK, Jacobians and the centre of mass of an MJCF robot (the G1 of the shared data)."""
+    from jaxanim import robots
+
+    from .conftest import shared_data_dir
+
+    pytest.importorskip("mujoco")
+    g1 = robots.load_robot(shared_data_dir() / "robots" / "unitree_g1" / "g1.xml")
+    q = g1.qpos0
+    _assert_highest("robots.forward_kinematics", _lower(lambda q: robots.forward_kinematics(g1, q).xpos, q))
+    _assert_highest("robots.jacobian", _lower(lambda q: robots.jacobian(g1, q, ["left_foot", "pelvis"]), q))
+    _assert_highest("robots.center_of_mass", _lower(lambda q: robots.center_of_mass(g1, q), q))
+
+
 def test_splines_state_highest():
     knots = jnp.linspace(0.0, 1.0, 5)
     points = jnp.asarray(np.random.default_rng(0).normal(size=(5, 3)))

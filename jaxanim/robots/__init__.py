@@ -1,0 +1,18 @@
+"""Robots as kinematic trees: MJCF / URDF loading (through MuJoCo), forward kinematics, geometric
+Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding.
+
+Loading needs the optional extra: ``pip install 'jaxanim[robots]'``.
+"""
+
+from ._kinematics import (
+    RobotFK as RobotFK,
+    center_of_mass as center_of_mass,
+    forward_kinematics as forward_kinematics,
+    jacobian as jacobian,
+)
+from ._load import (
+    RobotLoadError as RobotLoadError,
+    load_robot as load_robot,
+    robot_from_mujoco as robot_from_mujoco,
+)
+from ._robot import Robot as Robot

@@ -1,0 +1,252 @@
+"""Loading robots: MJCF and URDF through MuJoCo's own compiler (the optional extra ``robots``).
+
+Both formats are compiled by the ``mujoco`` package, so MJCF defaults, ``childclass``, degrees,
+Euler angles, ``fromto``, quaternion normalisation and URDF ``<origin rpy>`` are all MuJoCo's; the
+:class:`Robot` is then read from the compiled ``mujoco.MjModel``. Only kinematics is read, so mesh
+files are never needed: a URDF is loaded without its ``<visual>`` / ``<collision>`` elements, and an
+MJCF whose mesh (or height-field, texture) files are missing is compiled without them.
+
+URDF import (MuJoCo's): every link becomes a body (``fusestatic="false"``, so links behind fixed
+joints, such as sole or sensor frames, stay bodies), named after the link; each ``revolute`` /
+``continuous`` joint becomes a hinge, ``prismatic`` a slide and ``floating`` a free joint, named
+after the URDF joint; ``fixed`` joints give no joint. Bodies (and so joints) come depth first from
+the root link, the children of a link in the order of their ``<joint>`` elements in the file.
+This is **not** Pinocchio's order (map by name). A ``continuous`` joint has no range, and a
+``revolute`` one the range of its ``<limit>``. ``floating_base=True`` adds a free joint named
+``"root_joint"`` (Pinocchio's name for its free flyer) on the root link, first in ``qpos``.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import warnings
+import xml.etree.ElementTree as ET
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import JaxanimError
+from ._robot import JOINT_TYPES, Robot, unbounded_range
+
+_INSTALL = "pip install 'jaxanim[robots]'"
+#: The bound MuJoCo's compiler is given when a moving body has no mass (a kinematics-only URDF):
+#: MuJoCo refuses to compile such a model; this mass changes the centre of mass by about 1e-12.
+_TINY_MASS = 1e-12
+
+
+class RobotLoadError(JaxanimError):
+    """A robot description could not be read or compiled.
+
+    Attributes:
+        path: the file.
+        message: the parser's or compiler's message.
+    """
+
+    def __init__(self, path, message: str):
+        self.path = str(path)
+        self.message = str(message).strip()
+        super().__init__(f"{self.path}: {self.message}")
+
+
+def _import_mujoco():
+    try:
+        import mujoco
+    except ImportError as exc:
+        raise ImportError(
+            f"jaxanim.robots reads MJCF and URDF with MuJoCo, which is not installed: {_INSTALL}"
+        ) from exc
+    return mujoco
+
+
+def _kind(path: pathlib.Path, text: str) -> str:
+    """``"mjcf"`` or ``"urdf"`` from the root element (the suffix is not trusted)."""
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise RobotLoadError(path, f"not well-formed XML: {exc}") from None
+    if root.tag == "mujoco":
+        return "mjcf"
+    if root.tag == "robot":
+        return "urdf"
+    raise RobotLoadError(path, f"expected an MJCF (<mujoco>) or URDF (<robot>) file, the root element is <{root.tag}>")
+
+
+def _urdf_text(text: str) -> str:
+    """The URDF without ``<visual>`` / ``<collision>``, with MuJoCo's compiler options for kinematics."""
+    root = ET.fromstring(text)
+    for link in root.iter("link"):
+        for tag in ("visual", "collision"):
+            for e in link.findall(tag):
+                link.remove(e)
+    mj = root.find("mujoco")
+    if mj is None:
+        mj = ET.SubElement(root, "mujoco")
+    comp = mj.find("compiler")
+    if comp is None:
+        comp = ET.SubElement(mj, "compiler")
+    # fusestatic="false": links behind fixed joints stay bodies; balanceinertia: some URDF inertias
+    # break the triangle inequality (Romeo's), and MuJoCo refuses them; inertia is not read here.
+    comp.attrib.update(fusestatic="false", discardvisual="true", balanceinertia="true", inertiafromgeom="false",
+                       angle="radian", autolimits="true")
+    return ET.tostring(root, encoding="unicode")
+
+
+def _strip_files(spec) -> list[str]:
+    """Delete the assets that need files (meshes, height fields, skins, textures) and the geoms that
+    use them. Returns the bodies whose mass came from a deleted geom (no explicit inertial)."""
+    mujoco = _import_mujoco()
+    dropped_type = {mujoco.mjtGeom.mjGEOM_MESH, mujoco.mjtGeom.mjGEOM_HFIELD, mujoco.mjtGeom.mjGEOM_SDF}
+    lost = []
+    for geom in list(spec.geoms):
+        if geom.type in dropped_type:
+            body = geom.parent
+            if not body.explicitinertial and body.name not in lost:
+                lost.append(body.name)
+            spec.delete(geom)
+    for seq in ("skins", "meshes", "hfields"):
+        for e in list(getattr(spec, seq)):
+            spec.delete(e)
+    for tex in list(spec.textures):
+        if tex.file or any(tex.cubefiles):
+            for mat in spec.materials:
+                mat.textures = ["" if t == tex.name else t for t in mat.textures]
+            spec.delete(tex)
+    return lost
+
+
+def _compile(spec, path):
+    """Compile, recovering from missing asset files and massless moving bodies (kinematics only)."""
+    stripped = False
+    for _ in range(3):
+        try:
+            return spec.compile()
+        except ValueError as exc:
+            msg = str(exc)
+            if not stripped and ("Error opening file" in msg or "resource not found" in msg.lower()):
+                lost = _strip_files(spec)
+                stripped = True
+                if lost:
+                    warnings.warn(
+                        f"{path}: compiled without its mesh / height-field files (kinematics only); these bodies "
+                        f"took their mass from those geoms and now have less or none, so center_of_mass is off: {lost}",
+                        stacklevel=3,
+                    )
+                continue
+            if "mass and inertia of moving bodies" in msg and spec.compiler.boundmass < _TINY_MASS:
+                spec.compiler.boundmass = _TINY_MASS
+                spec.compiler.boundinertia = _TINY_MASS
+                continue
+            raise RobotLoadError(path, msg) from None
+    raise RobotLoadError(path, "MuJoCo could not compile the model")  # pragma: no cover
+
+
+def _add_free_joint(spec, path):
+    roots = []
+    b = spec.worldbody.first_body()
+    while b is not None:
+        roots.append(b)
+        b = spec.worldbody.next_body(b)
+    if len(roots) != 1:
+        raise RobotLoadError(path, f"floating_base=True needs exactly one root body, found {len(roots)}: "
+                                   f"{[r.name for r in roots]}")
+    root = roots[0]
+    if root.first_joint() is not None:
+        raise RobotLoadError(path, f"floating_base=True: the root body {root.name!r} already has joints")
+    root.add_freejoint(name="root_joint")
+
+
+def load_robot(path: str | os.PathLike, *, floating_base: bool = False, dtype=None) -> Robot:
+    """Read a robot from an MJCF or URDF file (kinematics only; mesh files are never needed).
+
+    The format is taken from the root element (``<mujoco>`` or ``<robot>``), and both are compiled
+    by MuJoCo (see the module docstring for the URDF import and its joint order).
+
+    Args:
+        path: the ``.xml`` (MJCF) or ``.urdf`` file. MJCF ``<include>``s are resolved relative to it.
+        floating_base: add a free joint named ``"root_joint"`` to the root body (a URDF's root link,
+            or the single top-level body of an MJCF that has no joint), as Pinocchio's
+            ``JointModelFreeFlyer`` does. An MJCF's own free joints come from the file.
+        dtype: floating dtype of the arrays (default: JAX's default float).
+
+    Returns:
+        The :class:`Robot`.
+
+    Raises:
+        ImportError: if ``mujoco`` is not installed (``pip install 'jaxanim[robots]'``).
+        FileNotFoundError: if ``path`` does not exist.
+        RobotLoadError: (a :class:`JaxanimError`) with the path and the parser's or compiler's message,
+            if the file does not parse or compile.
+    """
+    mujoco = _import_mujoco()
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"robot file not found: {path}")
+    text = path.read_text()
+    kind = _kind(path, text)
+    try:
+        if kind == "urdf":
+            spec = mujoco.MjSpec.from_string(_urdf_text(text))
+        else:
+            spec = mujoco.MjSpec.from_file(str(path))
+    except ValueError as exc:
+        raise RobotLoadError(path, str(exc)) from None
+    if floating_base:
+        _add_free_joint(spec, path)
+    model = _compile(spec, path)
+    return robot_from_mujoco(model, dtype=dtype)
+
+
+def _names(model, obj, n: int) -> tuple[str, ...]:
+    mujoco = _import_mujoco()
+    return tuple(mujoco.mj_id2name(model, obj, i) or "" for i in range(n))
+
+
+def robot_from_mujoco(model, *, dtype=None) -> Robot:
+    """The :class:`Robot` of a compiled ``mujoco.MjModel`` (its kinematic fields, copied).
+
+    Args:
+        model: a ``mujoco.MjModel``.
+        dtype: floating dtype of the arrays (default: JAX's default float).
+
+    Raises:
+        JaxanimError: if the model has mocap bodies (their pose is not in ``qpos``).
+    """
+    mujoco = _import_mujoco()
+    if model.nmocap:
+        raise JaxanimError("robot_from_mujoco: mocap bodies are not supported (their pose is not part of qpos)")
+    dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
+
+    def arr(x, shape):
+        return jnp.asarray(np.array(x, dtype=np.float64).reshape(shape), dtype=dtype)
+
+    B, J, S = model.nbody, model.njnt, model.nsite
+    parents = [int(p) for p in model.body_parentid]
+    parents[0] = -1
+    name = bytes(model.names).split(b"\0", 1)[0].decode()  # the model's name opens the names buffer
+    return Robot(
+        name=name,
+        body_names=_names(model, mujoco.mjtObj.mjOBJ_BODY, B),
+        body_parents=tuple(parents),
+        jnt_names=_names(model, mujoco.mjtObj.mjOBJ_JOINT, J),
+        jnt_types=tuple(JOINT_TYPES[int(t)] for t in model.jnt_type),
+        jnt_bodies=tuple(int(b) for b in model.jnt_bodyid),
+        jnt_qposadr=tuple(int(a) for a in model.jnt_qposadr),
+        jnt_dofadr=tuple(int(a) for a in model.jnt_dofadr),
+        jnt_limited=tuple(bool(x) for x in model.jnt_limited),
+        site_names=_names(model, mujoco.mjtObj.mjOBJ_SITE, S),
+        site_bodies=tuple(int(b) for b in model.site_bodyid),
+        nq=int(model.nq),
+        nv=int(model.nv),
+        body_pos=arr(model.body_pos, (B, 3)),
+        body_quat=arr(model.body_quat, (B, 4)),
+        body_ipos=arr(model.body_ipos, (B, 3)),
+        body_iquat=arr(model.body_iquat, (B, 4)),
+        body_mass=arr(model.body_mass, (B,)),
+        jnt_pos=arr(model.jnt_pos, (J, 3)),
+        jnt_axis=arr(model.jnt_axis, (J, 3)),
+        jnt_range=arr(unbounded_range(model.jnt_range, model.jnt_limited), (J, 2)),
+        site_pos=arr(model.site_pos, (S, 3)),
+        site_quat=arr(model.site_quat, (S, 4)),
+        qpos0=arr(model.qpos0, (model.nq,)),
+    )

@@ -1,0 +1,216 @@
+"""Robots as kinematic trees: the :class:`Robot` Module (a MuJoCo model's kinematic part).
+
+A :class:`Robot` mirrors the kinematic fields of a compiled ``mujoco.MjModel`` (as MJX's ``Model``
+does): the body tree, the joints on each body, the sites, the masses and centres of mass, and the
+reference configuration ``qpos0``. Structure (names, parents, joint types and addresses) is static,
+numbers are arrays, so a robot can be passed through ``jax.jit`` and closed over under ``jax.vmap``.
+
+Conventions (MuJoCo's):
+    * **bodies**: body 0 is the world (``"world"``, parent ``-1``; MuJoCo's ``body_parentid[0]`` is
+      0), then the bodies in MuJoCo's order, which is depth first and topological
+      (``body_parents[b] < b``). A body with no joint is fixed to its parent.
+    * **joints**: in MuJoCo's order (by body, then in file order within a body). The types are
+      ``"free"`` (7 qpos: position, then a wxyz quaternion; 6 dofs), ``"ball"`` (4 qpos: a wxyz
+      quaternion; 3 dofs), ``"slide"`` and ``"hinge"`` (1 each). ``jnt_qposadr`` / ``jnt_dofadr``
+      are each joint's first slot in ``qpos`` / ``qvel``.
+    * a body's frame is its parent's frame times ``(body_pos, body_quat)``, then each of its joints
+      in order: a hinge rotates by ``qpos - qpos0`` about ``jnt_axis`` through the anchor ``jnt_pos``
+      (both in the body frame), a slide translates by ``qpos - qpos0`` along ``jnt_axis``, a ball
+      rotates by the (normalised) qpos quaternion about the anchor, and a free joint sets the
+      body's world pose from qpos (the body's own ``pos``/``quat`` only set ``qpos0``).
+    * quaternions are wxyz; lengths in metres, angles in radians, masses in kilograms.
+    * **ranges**: ``jnt_range [joints, 2]`` in radians (hinge, ball: ``[0, max angle]``) or metres
+      (slide). A joint without a range (MuJoCo's ``jnt_limited`` false, every free joint) is
+      recorded as unbounded: ``jnt_limited[j]`` is ``False`` and ``jnt_range[j] = (-inf, inf)``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import JaxanimError, check_shape
+from .._types import Array, Float
+
+JOINT_TYPES = ("free", "ball", "slide", "hinge")  # MuJoCo's mjtJoint order: mjJNT_FREE = 0, ...
+JOINT_NQ = {"free": 7, "ball": 4, "slide": 1, "hinge": 1}
+JOINT_NV = {"free": 6, "ball": 3, "slide": 1, "hinge": 1}
+
+
+def _unknown(kind: str, name, valid: tuple[str, ...]) -> JaxanimError:
+    return JaxanimError(f"unknown {kind} {name!r}; valid {kind} names: {[v for v in valid if v]}")
+
+
+def _validate_structure(r: Robot) -> None:
+    B, J, S = len(r.body_names), len(r.jnt_names), len(r.site_names)
+    if B == 0:
+        raise JaxanimError("body_names: a robot needs at least the world body")
+    if len(r.body_parents) != B:
+        raise JaxanimError(f"body_parents: expected {B} entries (one per body), got {len(r.body_parents)}")
+    if r.body_parents[0] != -1:
+        raise JaxanimError(f"body_parents: body 0 must be the world (parent -1), got parent {r.body_parents[0]}")
+    for b, p in enumerate(r.body_parents[1:], start=1):
+        if not 0 <= p < b:
+            raise JaxanimError(
+                f"body_parents: bodies must be topologically sorted (0 <= body_parents[b] < b); "
+                f"body {b} ({r.body_names[b]!r}) has parent {p}"
+            )
+    for field in ("jnt_types", "jnt_bodies", "jnt_qposadr", "jnt_dofadr", "jnt_limited"):
+        if len(getattr(r, field)) != J:
+            raise JaxanimError(f"{field}: expected {J} entries (one per joint), got {len(getattr(r, field))}")
+    bad = sorted({t for t in r.jnt_types if t not in JOINT_TYPES})
+    if bad:
+        raise JaxanimError(f"jnt_types: unknown joint types {bad}; valid: {list(JOINT_TYPES)}")
+    qadr = vadr = 0
+    for j in range(J):
+        name, t, b = r.jnt_names[j], r.jnt_types[j], r.jnt_bodies[j]
+        if not 1 <= b < B:
+            raise JaxanimError(f"jnt_bodies: joint {j} ({name!r}) is on body {b}, expected 1 <= body < {B}")
+        if j and b < r.jnt_bodies[j - 1]:
+            raise JaxanimError(
+                f"jnt_bodies: joints must be sorted by body (MuJoCo's order); joint {j} ({name!r}) is not"
+            )
+        if r.jnt_qposadr[j] != qadr or r.jnt_dofadr[j] != vadr:
+            raise JaxanimError(
+                f"jnt_qposadr / jnt_dofadr: joint {j} ({name!r}) starts at qpos {r.jnt_qposadr[j]} and dof "
+                f"{r.jnt_dofadr[j]}, expected {qadr} and {vadr} (joints packed in order)"
+            )
+        if t == "free" and r.jnt_bodies.count(b) != 1:
+            raise JaxanimError(f"jnt_types: the free joint {name!r} must be the only joint of its body")
+        qadr += JOINT_NQ[t]
+        vadr += JOINT_NV[t]
+    if (qadr, vadr) != (r.nq, r.nv):
+        raise JaxanimError(f"nq, nv: the joints need nq = {qadr} and nv = {vadr}, got nq = {r.nq} and nv = {r.nv}")
+    if len(r.site_bodies) != S:
+        raise JaxanimError(f"site_bodies: expected {S} entries (one per site), got {len(r.site_bodies)}")
+    for s, b in enumerate(r.site_bodies):
+        if not 0 <= b < B:
+            raise JaxanimError(f"site_bodies: site {s} ({r.site_names[s]!r}) is on body {b}, expected 0 <= body < {B}")
+
+
+class Robot(eqx.Module):
+    """A robot's kinematic tree: bodies, joints (hinge, slide, ball, free), sites and masses.
+
+    Build one with :func:`jaxanim.robots.load_robot` (MJCF or URDF) or
+    :func:`jaxanim.robots.robot_from_mujoco` (a compiled ``mujoco.MjModel``). The fields are
+    MuJoCo's, with MuJoCo's names; see the module docstring for the conventions.
+
+    Attributes:
+        name: the model's name. Static.
+        body_names: ``[bodies]`` names, body 0 is ``"world"``. Static.
+        body_parents: ``[bodies]`` parent body, ``-1`` for the world, ``body_parents[b] < b``. Static.
+        jnt_names: ``[joints]`` names. Static.
+        jnt_types: ``[joints]`` ``"free"``, ``"ball"``, ``"slide"`` or ``"hinge"``. Static.
+        jnt_bodies: ``[joints]`` the body each joint moves (sorted). Static.
+        jnt_qposadr, jnt_dofadr: ``[joints]`` first slot in ``qpos`` / ``qvel``. Static.
+        jnt_limited: ``[joints]`` whether the joint has a range. Static.
+        site_names, site_bodies: ``[sites]`` names and the body each is attached to. Static.
+        nq, nv: sizes of ``qpos`` and ``qvel``. Static.
+        body_pos: ``[bodies, 3]`` body frame origin in the parent frame (m).
+        body_quat: ``[bodies, 4]`` body frame orientation in the parent frame, wxyz unit quaternion.
+        body_ipos, body_iquat: ``[bodies, 3]``, ``[bodies, 4]`` centre of mass and principal axes in
+            the body frame.
+        body_mass: ``[bodies]`` mass (kg); the world's is 0.
+        jnt_pos: ``[joints, 3]`` joint anchor in the body frame (m).
+        jnt_axis: ``[joints, 3]`` unit axis of a hinge / slide in the body frame.
+        jnt_range: ``[joints, 2]`` lower and upper bound (rad or m); ``(-inf, inf)`` where not limited.
+        site_pos, site_quat: ``[sites, 3]``, ``[sites, 4]`` site pose in its body's frame.
+        qpos0: ``[nq]`` the reference configuration (hinges and slides are measured from it).
+    """
+
+    name: str = eqx.field(static=True)
+    body_names: tuple[str, ...] = eqx.field(static=True)
+    body_parents: tuple[int, ...] = eqx.field(static=True)
+    jnt_names: tuple[str, ...] = eqx.field(static=True)
+    jnt_types: tuple[str, ...] = eqx.field(static=True)
+    jnt_bodies: tuple[int, ...] = eqx.field(static=True)
+    jnt_qposadr: tuple[int, ...] = eqx.field(static=True)
+    jnt_dofadr: tuple[int, ...] = eqx.field(static=True)
+    jnt_limited: tuple[bool, ...] = eqx.field(static=True)
+    site_names: tuple[str, ...] = eqx.field(static=True)
+    site_bodies: tuple[int, ...] = eqx.field(static=True)
+    nq: int = eqx.field(static=True)
+    nv: int = eqx.field(static=True)
+    body_pos: Float[Array, "bodies 3"] = eqx.field(converter=jnp.asarray)
+    body_quat: Float[Array, "bodies 4"] = eqx.field(converter=jnp.asarray)
+    body_ipos: Float[Array, "bodies 3"] = eqx.field(converter=jnp.asarray)
+    body_iquat: Float[Array, "bodies 4"] = eqx.field(converter=jnp.asarray)
+    body_mass: Float[Array, " bodies"] = eqx.field(converter=jnp.asarray)
+    jnt_pos: Float[Array, "joints 3"] = eqx.field(converter=jnp.asarray)
+    jnt_axis: Float[Array, "joints 3"] = eqx.field(converter=jnp.asarray)
+    jnt_range: Float[Array, "joints 2"] = eqx.field(converter=jnp.asarray)
+    site_pos: Float[Array, "sites 3"] = eqx.field(converter=jnp.asarray)
+    site_quat: Float[Array, "sites 4"] = eqx.field(converter=jnp.asarray)
+    qpos0: Float[Array, " nq"] = eqx.field(converter=jnp.asarray)
+
+    def __check_init__(self):
+        _validate_structure(self)
+        B, J, S = self.num_bodies, self.num_joints, self.num_sites
+        for field, shape, what in (
+            ("body_pos", (B, 3), "(bodies, 3)"), ("body_quat", (B, 4), "(bodies, 4)"),
+            ("body_ipos", (B, 3), "(bodies, 3)"), ("body_iquat", (B, 4), "(bodies, 4)"),
+            ("body_mass", (B,), "(bodies,)"),
+            ("jnt_pos", (J, 3), "(joints, 3)"), ("jnt_axis", (J, 3), "(joints, 3)"),
+            ("jnt_range", (J, 2), "(joints, 2)"),
+            ("site_pos", (S, 3), "(sites, 3)"), ("site_quat", (S, 4), "(sites, 4)"),
+            ("qpos0", (self.nq,), "(nq,)"),
+        ):  # fmt: skip
+            check_shape(field, getattr(self, field), shape, what=f"{what} = {tuple(shape)}")
+
+    # --- cheap accessors -------------------------------------------------------------------------
+    @property
+    def num_bodies(self) -> int:
+        """Number of bodies, the world included."""
+        return len(self.body_names)
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.jnt_names)
+
+    @property
+    def num_sites(self) -> int:
+        return len(self.site_names)
+
+    @property
+    def dof_joints(self) -> tuple[int, ...]:
+        """``[nv]`` the joint of every dof (velocity coordinate / Jacobian column)."""
+        return tuple(j for j, t in enumerate(self.jnt_types) for _ in range(JOINT_NV[t]))
+
+    def body_index(self, name: str) -> int:
+        """Index of a body by name; raises :class:`JaxanimError` listing the valid names."""
+        if name in self.body_names and name:
+            return self.body_names.index(name)
+        raise _unknown("body", name, self.body_names)
+
+    def joint_index(self, name: str) -> int:
+        """Index of a joint by name; raises :class:`JaxanimError` listing the valid names."""
+        if name in self.jnt_names and name:
+            return self.jnt_names.index(name)
+        raise _unknown("joint", name, self.jnt_names)
+
+    def site_index(self, name: str) -> int:
+        """Index of a site by name; raises :class:`JaxanimError` listing the valid names."""
+        if name in self.site_names and name:
+            return self.site_names.index(name)
+        raise _unknown("site", name, self.site_names)
+
+    def qpos_slice(self, name: str) -> slice:
+        """The slots of joint ``name`` in ``qpos`` (7 for a free joint, 4 for a ball, else 1)."""
+        j = self.joint_index(name)
+        a = self.jnt_qposadr[j]
+        return slice(a, a + JOINT_NQ[self.jnt_types[j]])
+
+    def dof_slice(self, name: str) -> slice:
+        """The slots of joint ``name`` in ``qvel`` and the Jacobians' columns."""
+        j = self.joint_index(name)
+        a = self.jnt_dofadr[j]
+        return slice(a, a + JOINT_NV[self.jnt_types[j]])
+
+
+def unbounded_range(jnt_range, jnt_limited) -> np.ndarray:
+    """``jnt_range`` with the rows of joints that are not limited set to ``(-inf, inf)``."""
+    rng = np.array(jnt_range, dtype=np.float64).reshape(-1, 2)
+    lim = np.asarray(jnt_limited, dtype=bool).reshape(-1)
+    rng[~lim] = (-np.inf, np.inf)
+    return rng
