@@ -3,6 +3,7 @@
 procedural capsule skin for any skeleton, and OBJ reading and writing.
 """
 
+from ._bind import bind_transforms as bind_transforms
 from ._mesh import (
     Mesh as Mesh,
     SkinWeights as SkinWeights,
@@ -12,7 +13,6 @@ from ._mesh import (
 from ._weights import heuristic_weights as heuristic_weights
 from ._skin import (
     METHODS as METHODS,
-    bind_transforms as bind_transforms,
     skin as skin,
     skin_motion as skin_motion,
 )

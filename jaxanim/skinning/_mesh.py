@@ -18,6 +18,7 @@ import numpy as np
 from .._errors import JaxanimError, check_shape
 from .._types import Array, Float, Int
 from ..skeleton._skeleton import Skeleton
+from ._bind import _bind_rt
 
 
 def _is_traced(*xs) -> bool:
@@ -227,8 +228,6 @@ def check_weights(
 
 def rest_sites(skeleton: Skeleton, bind=None) -> tuple[np.ndarray, np.ndarray]:
     """Host copies of the bind-pose joint positions ``[J, 3]`` and End Site positions ``[E, 3]``."""
-    from ._skin import _bind_rt  # the one place that interprets ``bind``
-
     R, p = _bind_rt(skeleton, bind)
     if _is_traced(R, p):
         raise JaxanimError("bind: the bind pose must be concrete here (this runs on the host), got a traced array")
