@@ -211,3 +211,10 @@ def test_importing_the_packages_starts_no_jax_backend():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_no_library_file_over_700_lines():
+    """The layout keeps each module of jaxanim, solvers and benchmarks within 700 lines."""
+    files = [p for package in ("jaxanim", "solvers", "benchmarks") for p in (REPO / package).rglob("*.py")]
+    long = {str(p.relative_to(REPO)): n for p in files if (n := len(p.read_text(encoding="utf-8").splitlines())) > 700}
+    assert not long, f"files over 700 lines: {long}"

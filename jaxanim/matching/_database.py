@@ -20,7 +20,7 @@ from ._features import (
     contact_thresholds,
     make_layout,
 )
-from ..skeleton._processing import mirror as mirror_motion
+from ..skeleton._mirror import mirror as mirror_motion
 
 __all__ = ["MatchingDatabase", "build_database", "normalize_features"]
 

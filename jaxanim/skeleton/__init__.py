@@ -39,8 +39,7 @@ from ._processing import (
     facing_frame as facing_frame,
     inertialize as inertialize,
     make_loop as make_loop,
-    mirror as mirror,
-    mirror_pairs as mirror_pairs,
     split_facing as split_facing,
     transition as transition,
 )
+from ._mirror import mirror as mirror, mirror_pairs as mirror_pairs
