@@ -146,7 +146,7 @@ def test_layers_run_one_way():
         "jaxanim.matching": base | {"jaxanim._tree", "jaxanim.rotations", "jaxanim.skeleton", "jaxanim.kinematics"},
         "jaxanim.skinning": base | {"jaxanim.rotations", "jaxanim.skeleton", "jaxanim.kinematics"},
         "jaxanim.splines": base | {"jaxanim.rotations", "jaxanim.skeleton"},
-        "jaxanim.robots": base | {"jaxanim._tree", "jaxanim.rotations"},
+        "jaxanim.robots": base | {"jaxanim._tree", "jaxanim.rotations", "jaxanim.skeleton", "jaxanim.kinematics"},
     }
     for unit, allowed in below.items():
         extra = {v for v in graph[unit] if v.startswith("jaxanim")} - allowed

@@ -15,4 +15,10 @@ from ._load import (
     load_robot as load_robot,
     robot_from_mujoco as robot_from_mujoco,
 )
+from ._mapping import (
+    Calibration as Calibration,
+    RetargetMap as RetargetMap,
+    calibrate as calibrate,
+    load_mapping as load_mapping,
+)
 from ._robot import Robot as Robot

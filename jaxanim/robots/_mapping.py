@@ -1,0 +1,241 @@
+"""The retargeting map: which source joint drives which robot body or site, and its calibration.
+
+The JSON contract (issue 30)::
+
+    {"root": {"source": "Hips", "target": "pelvis"},
+     "pairs": [{"source": "LeftFoot", "target": "left_ankle_roll_link", "foot": true,
+                "position_weight": 1.0, "orientation_weight": 0.1, "offset": [w, x, y, z]}, ...],
+     "source_up": "y",          # or "z" (default "y", BVH's)
+     "scale": "auto"}           # or a number (default "auto")
+
+Each pair may give ``position_weight`` (default 1), ``orientation_weight`` (default 0.1; 0: the
+pair matches the position only) and ``offset``; ``foot`` marks the pairs whose stance is planted.
+Everything else is computed by :func:`calibrate`: the source's world axes in the robot's
+(``source_up``: a Y-up source faces +Z with +X on its left, as BVH clips do; it is turned so that
+it faces the robot's +X with +Y on its left, Z up, MuJoCo's convention; a Z-up source is taken as
+it is), the human-to-robot ``scale`` and each pair's rotation ``offset`` from the source's rest
+pose and the robot's zero pose (``qpos0``): with ``C`` the axes' rotation, a source joint's world
+rotation ``R`` drives its target's as ``C R offset``, so ``offset = (C R_rest)^T R_zero``.
+
+``scale: "auto"`` is the ratio of the two stances' heights, each the root's height above the
+lowest foot pair along up: for a robot whose zero pose stands straight (the G1 and the CMU
+humanoids do), the ratio of leg lengths.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping as MappingABC
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .. import rotations as rot
+from .._errors import JaxanimError
+from .._types import Array, Float
+from ..kinematics._fk import forward_kinematics as skeleton_fk
+from ..skeleton._skeleton import Skeleton
+from ._kinematics import _targets, forward_kinematics
+from ._robot import Robot
+
+__all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping"]
+
+#: A Y-up source (BVH: facing +Z, +X on its left) in the robot's axes (facing +X, +Y on its left, Z up).
+_Y_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+_UP_AXES = {"y": _Y_UP, "z": np.eye(3)}
+_TOP_KEYS = {"root", "pairs", "source_up", "scale"}
+_PAIR_KEYS = {"source", "target", "foot", "position_weight", "orientation_weight", "offset"}
+
+
+class RetargetMap(eqx.Module):
+    """A parsed retargeting map (:func:`load_mapping`): names and flags static, numbers arrays.
+
+    Attributes:
+        root_source, root_target: the source joint and the robot body of the root.
+        sources, targets: the pairs' source joints and robot bodies / sites (``"body:x"`` /
+            ``"site:x"`` where a name is both).
+        feet: whether each pair is a foot (planted in its stance phases).
+        source_up: ``"y"`` or ``"z"``.
+        auto_scale: whether ``scale`` is computed (:func:`calibrate`).
+        given_offsets: whether each pair's ``offset`` was given (else computed).
+        position_weight, orientation_weight: ``[pairs]`` weights of the matching terms.
+        offset: ``[pairs, 4]`` wxyz rotation offsets (identity where not given).
+        scale: the human-to-robot scale (``nan`` when ``auto_scale``).
+    """
+
+    root_source: str = eqx.field(static=True)
+    root_target: str = eqx.field(static=True)
+    sources: tuple[str, ...] = eqx.field(static=True)
+    targets: tuple[str, ...] = eqx.field(static=True)
+    feet: tuple[bool, ...] = eqx.field(static=True)
+    source_up: str = eqx.field(static=True)
+    auto_scale: bool = eqx.field(static=True)
+    given_offsets: tuple[bool, ...] = eqx.field(static=True)
+    position_weight: Float[Array, " pairs"]
+    orientation_weight: Float[Array, " pairs"]
+    offset: Float[Array, "pairs 4"]
+    scale: Float[Array, ""]
+
+    @property
+    def num_pairs(self) -> int:
+        return len(self.sources)
+
+
+class Calibration(eqx.Module):
+    """What :func:`calibrate` computed for one source skeleton and robot.
+
+    Attributes:
+        axes: ``[3, 3]`` the source's world axes in the robot's (``p_robot = axes @ p_source``).
+        scale: human-to-robot scale (source units to metres of the robot).
+        offset: ``[pairs, 4]`` wxyz rotation offsets: a pair's target rotation is
+            ``axes R_source offset``.
+    """
+
+    axes: Float[Array, "3 3"]
+    scale: Float[Array, ""]
+    offset: Float[Array, "pairs 4"]
+
+
+def _number(where: str, value, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise JaxanimError(f"mapping: {where}: expected a finite number, got {value!r}")
+    if value < 0 or (positive and value == 0):
+        raise JaxanimError(f"mapping: {where}: expected a {'positive' if positive else 'non-negative'} number, "
+                           f"got {value!r}")
+    return float(value)
+
+
+def _name(where: str, value) -> str:
+    if not isinstance(value, str) or not value:
+        raise JaxanimError(f"mapping: {where}: expected a name (a non-empty string), got {value!r}")
+    return value
+
+
+def load_mapping(mapping) -> RetargetMap:
+    """Parse a retargeting map: a JSON file's path, or the dict it holds (see the module docstring).
+
+    Raises:
+        JaxanimError: naming the key at fault: an unknown key, a missing or unmapped root, no pairs,
+            a pair without ``source`` / ``target``, a weight that is negative or not a number, an
+            offset that is not a unit quaternion, or a bad ``source_up`` / ``scale``.
+    """
+    if isinstance(mapping, (str, os.PathLike)):
+        try:
+            with open(mapping, encoding="utf-8") as f:
+                mapping = json.load(f)
+        except json.JSONDecodeError as exc:
+            raise JaxanimError(f"mapping: {os.fspath(mapping)}: not valid JSON: {exc}") from None
+    if not isinstance(mapping, MappingABC):
+        raise JaxanimError(f"mapping: expected a JSON object (a dict), got {type(mapping).__name__}")
+    unknown = sorted(set(mapping) - _TOP_KEYS)
+    if unknown:
+        raise JaxanimError(f"mapping: unknown key(s) {unknown}; valid: {sorted(_TOP_KEYS)}")
+    root = mapping.get("root")
+    if not isinstance(root, MappingABC) or "source" not in root or "target" not in root:
+        raise JaxanimError('mapping: root: the root is not mapped; expected {"root": {"source": SOURCE_JOINT, '
+                           '"target": ROBOT_BODY}}')
+    pairs = mapping.get("pairs")
+    if not isinstance(pairs, (list, tuple)) or not pairs:
+        raise JaxanimError("mapping: pairs: expected a non-empty list of {\"source\": ..., \"target\": ...}")
+    up = mapping.get("source_up", "y")
+    if up not in _UP_AXES:
+        raise JaxanimError(f"mapping: source_up: expected 'y' or 'z', got {up!r}")
+    scale = mapping.get("scale", "auto")
+    auto = scale == "auto"
+    scale = np.nan if auto else _number("scale", scale, positive=True)
+    sources, targets, feet, wp, wo, offsets, given = [], [], [], [], [], [], []
+    for i, p in enumerate(pairs):
+        where = f"pairs[{i}]"
+        if not isinstance(p, MappingABC):
+            raise JaxanimError(f"mapping: {where}: expected an object, got {p!r}")
+        bad = sorted(set(p) - _PAIR_KEYS)
+        if bad:
+            raise JaxanimError(f"mapping: {where}: unknown key(s) {bad}; valid: {sorted(_PAIR_KEYS)}")
+        sources.append(_name(f"{where}.source", p.get("source")))
+        targets.append(_name(f"{where}.target", p.get("target")))
+        foot = p.get("foot", False)
+        if not isinstance(foot, bool):
+            raise JaxanimError(f"mapping: {where}.foot: expected true or false, got {foot!r}")
+        feet.append(foot)
+        wp.append(_number(f"{where}.position_weight", p.get("position_weight", 1.0)))
+        wo.append(_number(f"{where}.orientation_weight", p.get("orientation_weight", 0.1)))
+        if "offset" in p:
+            q = np.asarray(p["offset"], dtype=np.float64) if isinstance(p["offset"], (list, tuple)) else None
+            if q is None or q.shape != (4,) or not np.all(np.isfinite(q)) or abs(np.linalg.norm(q) - 1) > 1e-6:
+                raise JaxanimError(f"mapping: {where}.offset: expected a unit quaternion [w, x, y, z], got "
+                                   f"{p['offset']!r}")
+            offsets.append(q)
+            given.append(True)
+        else:
+            offsets.append(np.array([1.0, 0.0, 0.0, 0.0]))
+            given.append(False)
+    if not any(feet):
+        raise JaxanimError('mapping: pairs: no pair is a foot ("foot": true); the feet are what is planted')
+    return RetargetMap(
+        root_source=_name("root.source", root["source"]), root_target=_name("root.target", root["target"]),
+        sources=tuple(sources), targets=tuple(targets), feet=tuple(feet), source_up=up, auto_scale=auto,
+        given_offsets=tuple(given), position_weight=jnp.asarray(wp), orientation_weight=jnp.asarray(wo),
+        offset=jnp.asarray(np.stack(offsets)), scale=jnp.asarray(scale),
+    )
+
+
+def _source_index(skeleton: Skeleton, where: str, name: str) -> int:
+    if name not in skeleton.names:
+        raise JaxanimError(f"mapping: {where}: unknown source joint {name!r}; the skeleton's joints are "
+                           f"{list(skeleton.names)}")
+    return skeleton.names.index(name)
+
+
+def _target_row(robot: Robot, where: str, name: str) -> int:
+    try:
+        return _targets(robot, (name,))[1][0]
+    except JaxanimError as exc:
+        message = str(exc)
+        raise JaxanimError(f"mapping: {where}: {message.removeprefix('names: ')}") from None
+
+
+def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibration:
+    """The axes, scale and rotation offsets of ``mapping`` for ``skeleton`` and ``robot``, from the
+    skeleton's rest pose (identity rotations, OFFSETs) and the robot's zero pose (``qpos0``).
+
+    Given offsets and a given scale are kept; the others are computed (see the module docstring).
+
+    Raises:
+        JaxanimError: an unknown source joint or robot body / site (the valid names listed), or a
+            foot pair that is not below the root in either pose.
+    """
+    if not isinstance(mapping, RetargetMap):
+        raise JaxanimError(f"mapping: expected a RetargetMap (robots.load_mapping), got {type(mapping).__name__}")
+    src = [_source_index(skeleton, f"pairs[{i}].source", n) for i, n in enumerate(mapping.sources)]
+    src_root = _source_index(skeleton, "root.source", mapping.root_source)
+    tgt = [_target_row(robot, f"pairs[{i}].target", n) for i, n in enumerate(mapping.targets)]
+    tgt_root = _target_row(robot, "root.target", mapping.root_target)
+    axes = _UP_AXES[mapping.source_up]
+    rest = skeleton_fk(skeleton, skeleton.rest_rotations(), skeleton.offsets)
+    p_src = np.asarray(rest.positions, np.float64) @ axes.T  # in the robot's axes
+    R_src = axes @ np.asarray(rest.rotations, np.float64)
+    zero = forward_kinematics(robot, robot.qpos0)
+    p_rob = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])
+    R_rob = np.concatenate([np.asarray(zero.xmat, np.float64), np.asarray(zero.site_xmat, np.float64)])
+    heights = []
+    for p, root, rows, what in ((p_src, src_root, src, "source rest pose"), (p_rob, tgt_root, tgt, "robot zero pose")):
+        for i, foot in enumerate(mapping.feet):
+            if foot and not p[rows[i], 2] < p[root, 2]:
+                raise JaxanimError(f"mapping: pairs[{i}] is a foot, but in the {what} it is not below the root "
+                                   f"({mapping.sources[i] if p is p_src else mapping.targets[i]} at height "
+                                   f"{p[rows[i], 2]:.4g}, the root at {p[root, 2]:.4g})")
+        heights.append(p[root, 2] - min(p[rows[i], 2] for i, foot in enumerate(mapping.feet) if foot))
+    scale = heights[1] / heights[0] if mapping.auto_scale else float(mapping.scale)
+    given = np.asarray(mapping.offset, np.float64)
+    offsets = []
+    for i in range(mapping.num_pairs):
+        if mapping.given_offsets[i]:
+            offsets.append(given[i])
+        else:
+            M = R_src[src[i]].T @ R_rob[tgt[i]]
+            offsets.append(np.asarray(rot.quat_canonical(rot.matrix_to_quat(jnp.asarray(M)))))
+    dtype = robot.qpos0.dtype
+    return Calibration(axes=jnp.asarray(axes, dtype), scale=jnp.asarray(scale, dtype),
+                       offset=jnp.asarray(np.stack(offsets), dtype))

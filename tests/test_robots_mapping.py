@@ -1,0 +1,137 @@
+"""The retargeting map (jaxanim.robots.load_mapping / calibrate), issue 30: the JSON contract, its
+errors, and the calibration against MuJoCo's own zero-pose kinematics and a NumPy rest pose."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import jaxanim
+from jaxanim import robots
+
+from .conftest import shared_data_dir
+
+mujoco = pytest.importorskip("mujoco")
+
+_Y_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # BVH (Y up, facing +Z) -> robot axes
+WALK_TO_G1 = {
+    "root": {"source": "Hips", "target": "pelvis"},
+    "pairs": [
+        {"source": "LeftFoot", "target": "left_ankle_roll_link", "foot": True},
+        {"source": "RightFoot", "target": "right_ankle_roll_link", "foot": True},
+        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5},
+        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5},
+        {"source": "Chest", "target": "site:imu_in_torso", "orientation_weight": 0.0},
+    ],
+}
+
+
+@pytest.fixture(scope="module")
+def setup():
+    path = shared_data_dir() / "robots" / "unitree_g1" / "g1.xml"
+    skel, _ = jaxanim.read_bvh(jaxanim.default_clip_path())
+    return skel, robots.load_robot(path), path
+
+
+def _mujoco_zero_pose(path):
+    """Body and site world poses of the model at qpos0, by MuJoCo itself."""
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    return model, data
+
+
+def _rest_positions(skel):
+    """World positions of the rest pose (identity rotations): the sums of the OFFSETs, in NumPy."""
+    off = np.asarray(skel.offsets, np.float64)
+    p = np.zeros_like(off)
+    for j, a in enumerate(skel.parents):
+        p[j] = off[j] + (p[a] if a >= 0 else 0.0)
+    return p
+
+
+def test_calibration_matches_mujoco_and_the_rest_pose(setup):
+    skel, g1, path = setup
+    cal = robots.calibrate(robots.load_mapping(WALK_TO_G1), skel, g1)
+    model, data = _mujoco_zero_pose(path)
+    body = lambda n: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
+    robot_height = data.xpos[body("pelvis"), 2] - min(data.xpos[body(f"{s}_ankle_roll_link"), 2]
+                                                       for s in ("left", "right"))
+    p = _rest_positions(skel)
+    source_height = p[skel.index("Hips"), 1] - min(p[skel.index(f"{s}Foot"), 1] for s in ("Left", "Right"))
+    np.testing.assert_allclose(float(cal.scale), robot_height / source_height, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(cal.axes), _Y_UP, atol=0)
+    # each offset takes the (turned) rest rotation of the source joint, the identity, onto MuJoCo's zero pose
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "imu_in_torso")
+    zero = [data.xmat[body(p["target"])].reshape(3, 3) if not p["target"].startswith("site:")
+            else data.site_xmat[site].reshape(3, 3) for p in WALK_TO_G1["pairs"]]
+    for k, R_zero in enumerate(zero):
+        O = np.asarray(jaxanim.rotations.quat_to_matrix(cal.offset[k]))
+        np.testing.assert_allclose(_Y_UP @ O, R_zero, atol=1e-12, err_msg=f"pair {k}")
+
+
+def test_given_offsets_and_scale_are_kept_and_the_file_form_parses(setup, tmp_path):
+    skel, g1, _ = setup
+    data = json.loads(json.dumps(WALK_TO_G1))
+    data["scale"] = 0.5
+    data["pairs"][2]["offset"] = [0.0, 1.0, 0.0, 0.0]
+    path = tmp_path / "map.json"
+    path.write_text(json.dumps(data), encoding="utf-8")
+    m = robots.load_mapping(path)
+    assert m.feet == (True, True, False, False, False) and m.targets[4] == "site:imu_in_torso"
+    np.testing.assert_array_equal(np.asarray(m.position_weight), [1, 1, 0.5, 0.5, 1])
+    np.testing.assert_array_equal(np.asarray(m.orientation_weight), [0.1, 0.1, 0.1, 0.1, 0.0])
+    cal = robots.calibrate(m, skel, g1)
+    assert float(cal.scale) == 0.5
+    np.testing.assert_array_equal(np.asarray(cal.offset[2]), [0.0, 1.0, 0.0, 0.0])
+
+
+def _with(**changes):
+    data = json.loads(json.dumps(WALK_TO_G1))
+    for key, value in changes.items():
+        if key.startswith("pair0_"):
+            data["pairs"][0][key[6:]] = value
+        elif value is None:
+            data.pop(key)
+        else:
+            data[key] = value
+    return data
+
+
+@pytest.mark.parametrize("data, match", [
+    (_with(root=None), r"root: the root is not mapped"),
+    (_with(pairs=[]), r"pairs: expected a non-empty list"),
+    (_with(extra=1), r"unknown key\(s\) \['extra'\]"),
+    (_with(source_up="x"), r"source_up: expected 'y' or 'z'"),
+    (_with(scale=-1.0), r"scale: expected a positive number"),
+    (_with(pair0_offset=[1.0, 1.0, 0.0, 0.0]), r"pairs\[0\].offset: expected a unit quaternion"),
+    (_with(pair0_position_weight="heavy"), r"pairs\[0\].position_weight: expected a finite number"),
+    (_with(pair0_sideways=True), r"pairs\[0\]: unknown key\(s\) \['sideways'\]"),
+    ({"root": WALK_TO_G1["root"], "pairs": WALK_TO_G1["pairs"][2:]}, r"no pair is a foot"),
+])
+def test_bad_maps_name_the_key(data, match):
+    with pytest.raises(jaxanim.JaxanimError, match=match):
+        robots.load_mapping(data)
+
+
+def test_names_and_feet_are_checked_against_the_skeleton_and_the_robot(setup, tmp_path):
+    skel, g1, _ = setup
+    with pytest.raises(jaxanim.JaxanimError, match=r"pairs\[0\].source: unknown source joint 'LeftPaw'; the "
+                                                    r"skeleton's joints are \['Hips', 'Spine'"):
+        robots.calibrate(robots.load_mapping(_with(pair0_source="LeftPaw")), skel, g1)
+    with pytest.raises(jaxanim.JaxanimError, match=r"pairs\[0\].target: unknown body or site 'left_hoof'; valid "
+                                                    r"names: \['world', 'pelvis'"):
+        robots.calibrate(robots.load_mapping(_with(pair0_target="left_hoof")), skel, g1)
+    with pytest.raises(jaxanim.JaxanimError, match=r"root.source: unknown source joint 'Pelvis'"):
+        robots.calibrate(robots.load_mapping(_with(root={"source": "Pelvis", "target": "pelvis"})), skel, g1)
+    hand_as_foot = _with()
+    hand_as_foot["pairs"][2]["foot"] = True
+    with pytest.raises(jaxanim.JaxanimError, match=r"pairs\[2\] is a foot, but in the source rest pose it is not "
+                                                    r"below the root"):
+        robots.calibrate(robots.load_mapping(hand_as_foot), skel, g1)
+    bad = tmp_path / "bad.json"
+    bad.write_text("{\"root\": ", encoding="utf-8")
+    with pytest.raises(jaxanim.JaxanimError, match=r"bad.json: not valid JSON"):
+        robots.load_mapping(bad)
