@@ -135,3 +135,28 @@ def test_names_and_feet_are_checked_against_the_skeleton_and_the_robot(setup, tm
     bad.write_text("{\"root\": ", encoding="utf-8")
     with pytest.raises(jaxanim.JaxanimError, match=r"bad.json: not valid JSON"):
         robots.load_mapping(bad)
+
+
+def test_the_shipped_humanoid_and_map():
+    """The package's own humanoid: MuJoCo compiles it, its soles stand on the ground at qpos0, its joints
+    and bodies are named and ordered as the G1's (so a map serves both), and the shipped map of the walk
+    calibrates on it and on the G1."""
+    path = robots.default_robot_path()
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    soles = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{s}_foot") for s in ("left", "right")]
+    np.testing.assert_allclose(data.site_xpos[soles, 2], 0.0, atol=1e-12)
+    g1_path = shared_data_dir() / "robots" / "unitree_g1" / "g1.xml"
+    g1_model = mujoco.MjModel.from_xml_path(str(g1_path))
+    names = lambda m, kind, n: [mujoco.mj_id2name(m, kind, i) for i in range(n)]  # noqa: E731
+    assert names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt) == names(g1_model, mujoco.mjtObj.mjOBJ_JOINT,
+                                                                         g1_model.njnt)
+    assert names(model, mujoco.mjtObj.mjOBJ_BODY, model.nbody) == names(g1_model, mujoco.mjtObj.mjOBJ_BODY,
+                                                                        g1_model.nbody)
+    assert (model.nq, model.nv) == (36, 35)
+    skel, _ = jaxanim.read_bvh(jaxanim.default_clip_path())
+    m = robots.load_mapping(robots.default_mapping_path())
+    for robot in (robots.load_robot(path), robots.load_robot(g1_path)):
+        cal = robots.calibrate(m, skel, robot)
+        assert 0.5 < float(cal.scale) < 1.0 and np.all(np.isfinite(np.asarray(cal.offset)))

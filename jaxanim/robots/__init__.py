@@ -10,6 +10,7 @@ from ._kinematics import (
     forward_kinematics as forward_kinematics,
     jacobian as jacobian,
 )
+from ._data import default_mapping_path as default_mapping_path, default_robot_path as default_robot_path
 from ._load import (
     RobotLoadError as RobotLoadError,
     load_robot as load_robot,
