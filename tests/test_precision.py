@@ -206,7 +206,7 @@ def test_physics_character_and_tracking_state_highest():
 
 
 def test_robots_state_highest():
-    """FK, Jacobians and the centre of mass of an MJCF robot (the G1 of the shared data)."""
+    """FK, Jacobians, the centre of mass and IK of an MJCF robot (the G1 of the shared data)."""
     from jaxanim import robots
 
     from .conftest import shared_data_dir
@@ -217,6 +217,8 @@ def test_robots_state_highest():
     _assert_highest("robots.forward_kinematics", _lower(lambda q: robots.forward_kinematics(g1, q).xpos, q))
     _assert_highest("robots.jacobian", _lower(lambda q: robots.jacobian(g1, q, ["left_foot", "pelvis"]), q))
     _assert_highest("robots.center_of_mass", _lower(lambda q: robots.center_of_mass(g1, q), q))
+    feet = (ik.Target("left_foot", [0.0, 0.1, 0.0], [1.0, 0.0, 0.0, 0.0]), ik.Target("pelvis", [0.0, 0.0, 0.8]))
+    _assert_highest("ik.solve_ik (robot)", _lower(lambda q: ik.solve_ik(g1, feet, q, regularization=1e-3).qpos, q))
 
 
 def test_splines_state_highest():

@@ -46,29 +46,8 @@ from ..skeleton._skeleton import Skeleton
 from ._targets import Target, _check_targets
 
 
-def _left_jacobian(phi):
-    """SO(3) left Jacobian ``J_l(phi)`` ``[..., 3, 3]`` with a Taylor branch at 0."""
-    th2 = jnp.sum(phi * phi, axis=-1)
-    small = th2 < 1e-8
-    th2s = jnp.where(small, 1.0, th2)
-    th = jnp.sqrt(th2s)
-    a = jnp.where(small, 0.5 - th2 / 24.0, (1.0 - jnp.cos(th)) / th2s)
-    b = jnp.where(small, 1.0 / 6.0 - th2 / 120.0, (th - jnp.sin(th)) / (th2s * th))
-    K = rot.skew(phi)
-    eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), K.shape)
-    return eye + a[..., None, None] * K + b[..., None, None] * matmul(K, K)
-
-
-def _left_jacobian_inverse(phi):
-    """``J_l(phi)^{-1}`` ``[..., 3, 3]``, with a Taylor branch at 0 (valid for |phi| < 2 pi)."""
-    th2 = jnp.sum(phi * phi, axis=-1)
-    small = th2 < 1e-8
-    th2s = jnp.where(small, 1.0, th2)
-    th = jnp.sqrt(th2s)
-    c = jnp.where(small, 1.0 / 12.0 + th2 / 720.0, (1.0 / th2s) - (1.0 + jnp.cos(th)) / (2.0 * th * jnp.sin(th)))
-    K = rot.skew(phi)
-    eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), K.shape)
-    return eye - 0.5 * K + c[..., None, None] * matmul(K, K)
+_left_jacobian = rot.left_jacobian
+_left_jacobian_inverse = rot.left_jacobian_inverse
 
 
 # --- static layout --------------------------------------------------------------------------------

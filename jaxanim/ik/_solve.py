@@ -31,6 +31,8 @@ from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics
 from ..kinematics._limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit
 from ..kinematics._limits import _bone_axis, limit_violation as limit_violation
+from ..robots._ik import solve_ik_robot
+from ..robots._robot import Robot
 from ..skeleton._skeleton import Motion, Skeleton
 from ._problem import _layout as _layout, _pose, _residual, _residual_and_jacobian as _residual_and_jacobian
 from ._problem import _setup, _site_rotations, _stop
@@ -216,6 +218,11 @@ def _solve(skeleton, layout, targets, q0, translations, reference, options: IKOp
     return IKSolution(rot.quat_canonical(q), t, sol.result, sol.stats, pe, oe, success)
 
 
+_SKELETON_ONLY = ("pin", "root_translation", "limits", "limit_mode", "limit_weight")
+_ROBOT_KEYWORDS = ("reference", "frozen", "regularization", "joint_weights", "solver", "position_tolerance",
+                   "orientation_tolerance", "stop_at_tolerance", "throw")
+
+
 def solve_ik(
     skeleton: Skeleton,
     targets: Sequence[Target] | Target,
@@ -243,13 +250,24 @@ def solve_ik(
     The solve is compiled once per structure (skeleton tree, target sites, options): calling again
     with new targets or a new start pose does not recompile.
 
+    Robots. ``solve_ik(robot, targets, qpos, ...)`` with a :class:`jaxanim.robots.Robot` is
+    :func:`jaxanim.robots.solve_ik_robot`: targets name robot bodies or sites, ``qpos [nq]`` is the
+    start, limited hinges and slides are hard bounds, a free joint is a floating base, and the
+    result is a :class:`jaxanim.robots.RobotIKSolution` (``qpos`` and the status fields of
+    :class:`IKSolution`). It takes ``reference`` (a ``qpos``), ``frozen`` (joint names),
+    ``regularization``, ``joint_weights`` (``[nv]``), ``solver``, the tolerances,
+    ``stop_at_tolerance`` and ``throw``; ``translations``, ``options``, ``pin``,
+    ``root_translation``, ``limits``, ``limit_mode`` and ``limit_weight`` are skeleton arguments and
+    raise a :class:`JaxanimError` naming them.
+
     Args:
-        skeleton: the tree.
+        skeleton: the tree (or a :class:`jaxanim.robots.Robot`: see Robots above).
         targets: :class:`Target` s (positions and/or orientations of joints / End Sites).
-        rotations: ``[joints, 4]`` initial local wxyz quaternions (e.g. a clip frame).
+        rotations: ``[joints, 4]`` initial local wxyz quaternions (e.g. a clip frame); a robot's
+            ``qpos [nq]``.
         translations: ``[joints, 3]`` initial local translations (``None``: the offsets).
         reference: ``(rotations, translations)`` of the pose the regularizer pulls towards and the
-            pin and frozen joints refer to (default: the initial pose).
+            pin and frozen joints refer to (default: the initial pose); a robot's ``qpos [nq]``.
         options: an :class:`IKOptions` holding the options below (default ``IKOptions()``). A
             keyword given beside it wins over that field.
         pin: a joint or End Site that stays exactly where the reference pose puts it.
@@ -283,7 +301,7 @@ def solve_ik(
         throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
 
     Returns:
-        :class:`IKSolution`.
+        :class:`IKSolution` (a :class:`jaxanim.robots.RobotIKSolution` for a robot).
 
     Raises:
         JaxanimError: a wrong shape, an unknown joint / End Site, a bad option value, or nothing
@@ -295,6 +313,14 @@ def solve_ik(
         position_tolerance=position_tolerance, orientation_tolerance=orientation_tolerance,
         stop_at_tolerance=stop_at_tolerance, throw=throw,
     )
+    if isinstance(skeleton, Robot):  # robots.solve_ik_robot, with the keywords that apply to a robot
+        for name, value in (("translations", translations), ("options", options)) + tuple(
+                (k, keywords[k]) for k in _SKELETON_ONLY):
+            if value is not None and value is not _UNSET:
+                raise JaxanimError(f"{name}: only for a skeleton; with a robot give qpos [nq] as the third "
+                                   f"argument and the robot keywords ({', '.join(_ROBOT_KEYWORDS)})")
+        given = {k: v for k, v in keywords.items() if v is not _UNSET}
+        return solve_ik_robot(skeleton, targets, rotations, reference=reference, **given)
     options = _resolve_options(options, keywords)
     layout, targets, q0 = _check_problem(skeleton, targets, rotations, translations, reference, options)
     options = _skeleton_defaults(skeleton, options)

@@ -1,5 +1,6 @@
 """Robots as kinematic trees: MJCF / URDF loading (through MuJoCo), forward kinematics, geometric
-Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding.
+Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding, and
+inverse kinematics (:func:`solve_ik_robot`, also reached through ``jaxanim.ik.solve_ik(robot, ...)``).
 
 Loading needs the optional extra: ``pip install 'jaxanim[robots]'``.
 """
@@ -11,6 +12,10 @@ from ._kinematics import (
     jacobian as jacobian,
 )
 from ._data import default_mapping_path as default_mapping_path, default_robot_path as default_robot_path
+from ._ik import (
+    RobotIKSolution as RobotIKSolution,
+    solve_ik_robot as solve_ik_robot,
+)
 from ._load import (
     RobotLoadError as RobotLoadError,
     load_robot as load_robot,

@@ -23,10 +23,13 @@ from ._matrices import (
 )
 from ._so3 import (
     axis_angle_to_quat as axis_angle_to_quat,
+    left_jacobian as left_jacobian,
+    left_jacobian_inverse as left_jacobian_inverse,
     matrix_to_rotvec as matrix_to_rotvec,
     nlerp as nlerp,
     quat_to_axis_angle as quat_to_axis_angle,
     quat_to_rotvec as quat_to_rotvec,
+    right_jacobian as right_jacobian,
     rotation_between as rotation_between,
     rotvec_to_matrix as rotvec_to_matrix,
     rotvec_to_quat as rotvec_to_quat,

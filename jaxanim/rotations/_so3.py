@@ -1,5 +1,6 @@
 """SO(3) exponential and logarithm (rotation vectors), axis-angle, interpolation (slerp, nlerp) and
-the minimal rotation between two directions (conventions: :mod:`jaxanim.rotations._base`).
+the minimal rotation between two directions, and the SO(3) Jacobians of the exponential
+(conventions: :mod:`jaxanim.rotations._base`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from ._base import (
     _safe_normalize,
     _taylor_eps,
 )
-from ._matrices import _matrix_to_quat
+from ._matrices import _matrix_to_quat, _skew
 from ._quaternions import _quat_normalize
 
 
@@ -311,3 +312,60 @@ def rotation_between(a: Float[ArrayLike, "*batch 3"], b: Float[ArrayLike, "*batc
     q_anti = jnp.concatenate([jnp.zeros_like(w)[..., None], _perpendicular(ua)], axis=-1)
     q = jnp.where(anti[..., None], q_anti, q)
     return jnp.where((ok_a & ok_b)[..., None], q, _identity_quat_like(q))
+
+
+# ------------------------------------------------------------------------------------------------
+# SO(3) Jacobians of the exponential (IK's exact Jacobians in exponential coordinates)
+# ------------------------------------------------------------------------------------------------
+
+
+def _skew_square(v: Array) -> Array:
+    """``skew(v) @ skew(v) = v v^T - |v|^2 I``, elementwise (no batch of tiny dots under vmap)."""
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=v.dtype), v.shape + (3,))
+    return v[..., :, None] * v[..., None, :] - jnp.sum(v * v, axis=-1)[..., None, None] * eye
+
+
+def _left_jacobian(phi: Array) -> Array:
+    th2 = jnp.sum(phi * phi, axis=-1)
+    small = th2 < 1e-8
+    th2s = jnp.where(small, 1.0, th2)
+    th = jnp.sqrt(th2s)
+    a = jnp.where(small, 0.5 - th2 / 24.0, (1.0 - jnp.cos(th)) / th2s)
+    b = jnp.where(small, 1.0 / 6.0 - th2 / 120.0, (th - jnp.sin(th)) / (th2s * th))
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), phi.shape + (3,))
+    return eye + a[..., None, None] * _skew(phi) + b[..., None, None] * _skew_square(phi)
+
+
+def _left_jacobian_inverse(phi: Array) -> Array:
+    th2 = jnp.sum(phi * phi, axis=-1)
+    small = th2 < 1e-8
+    th2s = jnp.where(small, 1.0, th2)
+    th = jnp.sqrt(th2s)
+    c = jnp.where(small, 1.0 / 12.0 + th2 / 720.0, (1.0 / th2s) - (1.0 + jnp.cos(th)) / (2.0 * th * jnp.sin(th)))
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=phi.dtype), phi.shape + (3,))
+    return eye - 0.5 * _skew(phi) + c[..., None, None] * _skew_square(phi)
+
+
+def left_jacobian(phi: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """SO(3) left Jacobian ``J_l(phi) = I + a K + b K^2`` (``K = skew(phi)``, a Taylor branch at 0):
+    ``exp(phi + d) = exp(J_l(phi) d) exp(phi)`` to first order.
+
+    Args:
+        phi: ``[..., 3]`` rotation vectors.
+
+    Returns:
+        ``[..., 3, 3]``.
+    """
+    return _left_jacobian(_as_float("phi", phi, (3,)))
+
+
+def right_jacobian(phi: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """SO(3) right Jacobian ``J_r(phi) = J_l(-phi)``: ``exp(phi + d) = exp(phi) exp(J_r(phi) d)`` to
+    first order (``[..., 3]`` -> ``[..., 3, 3]``)."""
+    return _left_jacobian(-_as_float("phi", phi, (3,)))
+
+
+def left_jacobian_inverse(phi: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """``J_l(phi)^{-1} = I - K/2 + c K^2`` (a Taylor branch at 0; valid for ``|phi| < 2 pi``):
+    ``log(exp(d) exp(phi)) = phi + J_l(phi)^{-1} d`` to first order (``[..., 3]`` -> ``[..., 3, 3]``)."""
+    return _left_jacobian_inverse(_as_float("phi", phi, (3,)))
