@@ -258,6 +258,10 @@ def test_feet_and_hands_detection_and_overrides(walk):
 
 def test_database_errors(walk, db):
     skel, motion = walk
+    with pytest.raises(jaxanim.JaxanimError, match=r"clips: expected a sequence of Motion, got one Motion"):
+        matching.build_database(motion, skel)
+    with pytest.raises(jaxanim.JaxanimError, match=r"clips\[1\]: expected a jaxanim Motion, got str"):
+        matching.build_database([motion, "walk.bvh"], skel)
     other = jaxanim.Skeleton(skel.names, skel.parents, np.asarray(skel.offsets) * 1.1, skel.channels,
                              skel.end_site_parents, skel.end_site_offsets)
     with pytest.raises(jaxanim.JaxanimError, match="b.bvh: its skeleton differs from the database's"):

@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 from jaxanim import JaxanimError
 from jaxanim.app import _cli
 from jaxanim.kinematics import forward_kinematics
+from jaxanim.skeleton._clips import resample
 from jaxanim.skeleton import (
     Motion,
     Skeleton,
@@ -428,6 +429,8 @@ def test_mirror_needs_a_symmetric_skeleton(shared_data):
 
 def test_bad_input(walk):
     skel, m = walk
+    with pytest.raises(JaxanimError, match=r"fps: expected a positive finite number of frames per second, got 0"):
+        resample(m, fps=0)
     short = Motion(m.rotations[:10, :5], m.translations[:10, :5], m.frame_time)
     slow = Motion(m.rotations, m.translations, 2 * m.frame_time)
     cases = [

@@ -227,6 +227,10 @@ def test_bad_input(problem, result):
                                                              motion.frame_time))
     with pytest.raises(jaxanim.JaxanimError, match="too short for one control window of 3 frames"):
         tracking.samcon(char, short, jax.random.PRNGKey(0))
+    with pytest.raises(jaxanim.JaxanimError, match=r"key: expected a jax.random key \(jax.random.PRNGKey\(seed\)"):
+        tracking.samcon(char, ref, 0)
+    with pytest.raises(jaxanim.JaxanimError, match=r"key: .* got an array of dtype float64 and shape \(2,\)"):
+        tracking.samcon(char, ref, jnp.zeros(2))
     with pytest.raises(jaxanim.JaxanimError, match="feedback=True: the result has no feedback gains"):
         tracking.replay(char, ref, result, feedback=True)
     with pytest.raises(jaxanim.JaxanimError, match=re.escape("linearization B: expected shape (frames - 1, 12 bodies, 3 joints) = (60, 228, 54), got (60, 228, 3)")):

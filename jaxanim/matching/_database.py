@@ -145,9 +145,14 @@ def build_database(
             shorter than the trajectory window).
     """
     options = FeatureOptions() if options is None else options
+    if isinstance(clips, Motion):
+        raise JaxanimError("clips: expected a sequence of Motion, got one Motion (pass [motion])")
     clips = list(clips)
     if not clips:
         raise JaxanimError("clips: expected at least one clip")
+    for i, c in enumerate(clips):
+        if not isinstance(c, Motion):
+            raise JaxanimError(f"clips[{i}]: expected a jaxanim Motion, got {type(c).__name__}")
     labels = list(sources) if sources is not None else [f"clip {i}" for i in range(len(clips))]
     if len(labels) != len(clips):
         raise JaxanimError(f"sources: expected {len(clips)} labels (one per clip), got {len(labels)}")

@@ -63,6 +63,8 @@ def resample(motion: Motion, frame_time: float | None = None, *, fps: float | No
     """
     if (frame_time is None) == (fps is None):
         raise JaxanimError("resample: give exactly one of frame_time= or fps=")
+    if fps is not None and not (math.isfinite(float(fps)) and float(fps) > 0):
+        raise JaxanimError(f"fps: expected a positive finite number of frames per second, got {fps}")
     new_dt = float(frame_time) if frame_time is not None else 1.0 / float(fps)
     if not (math.isfinite(new_dt) and new_dt > 0):
         raise JaxanimError(f"frame_time: expected a positive finite number, got {new_dt}")

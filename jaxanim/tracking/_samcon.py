@@ -456,6 +456,17 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
     return _Problem(window, simulate_frame, start_state, frame_cost, errors, fell, nj)
 
 
+def _check_key(key) -> None:
+    """A ``jax.random`` key: a typed key, or a raw ``uint32[2]`` one (a batch of keys under ``vmap``)."""
+    dtype = getattr(key, "dtype", None)
+    if dtype is not None and (jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
+                              or (dtype == jnp.uint32 and getattr(key, "shape", ())[-1:] == (2,))):
+        return
+    raise JaxanimError(f"key: expected a jax.random key (jax.random.PRNGKey(seed) or jax.random.key(seed)), got "
+                       f"{key!r}" if dtype is None else f"key: expected a jax.random key (jax.random.PRNGKey(seed) "
+                       f"or jax.random.key(seed)), got an array of dtype {dtype} and shape {key.shape}")
+
+
 def _check(character, reference, options):
     if not isinstance(character, Character):
         raise JaxanimError(f"character: expected a jaxanim.character.Character, got {type(character).__name__}")
@@ -498,6 +509,7 @@ def samcon(
         JaxanimError: a reference too short for one window, or arguments of the wrong type.
     """
     options, windows = _check(character, reference, options)
+    _check_key(key)
     if progress is None:
         return _samcon(character, reference, key, options, windows)
     _PROGRESS.append(progress)
