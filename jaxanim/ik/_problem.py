@@ -46,10 +46,6 @@ from ..skeleton._skeleton import Skeleton
 from ._targets import Target, _check_targets
 
 
-_left_jacobian = rot.left_jacobian
-_left_jacobian_inverse = rot.left_jacobian_inverse
-
-
 # --- static layout --------------------------------------------------------------------------------
 
 
@@ -171,7 +167,7 @@ def _variables_to_pose(skeleton, layout, q_ref, t_ref, y, charts=()):
     exp_joints = np.asarray(layout.free_joints, dtype=np.int32)[exp_slots]
     delta = jnp.zeros((J, 3), y.dtype).at[exp_joints].set(blocks[exp_slots])
     q = rot.quat_multiply(rot.rotvec_to_quat(delta), q_ref)
-    E = _left_jacobian(delta[jnp.asarray(layout.free_joints)]) if nfree else jnp.zeros((0, 3, 3), y.dtype)
+    E = rot.left_jacobian(delta[jnp.asarray(layout.free_joints)]) if nfree else jnp.zeros((0, 3, 3), y.dtype)
     for group in charts:
         qk, Ek = group.omega_columns(blocks[jnp.asarray(group.slots)])
         q = q.at[jnp.asarray([layout.free_joints[k] for k in group.slots])].set(qk)
@@ -249,7 +245,7 @@ def _target_rows(layout, targets, p_world_sites, R_world_sites, J_vars, shift, d
         R_site = R_world_sites[io]
         # R_site @ R_goal^T, written elementwise (a batch of 3x3 dots is slow under vmap on XLA:CPU)
         e = rot.matrix_to_rotvec(sum(R_site[..., :, c, None] * R_goal[..., None, :, c] for c in range(3)))
-        Li = _left_jacobian_inverse(e)  # [ko, 3, 3]
+        Li = rot.left_jacobian_inverse(e)  # [ko, 3, 3]
         J_ang = J_vars[io, 3:]  # [ko, 3, n]
         res.append(sqrt_w[io, None] * e)
         rows.append(sqrt_w[io, None, None] * sum(Li[:, :, c, None] * J_ang[:, c, None, :] for c in range(3)))
@@ -273,7 +269,7 @@ def _regularization_rows(layout, blocks, q, q_ref, E, reg_w, n, dtype):
         js = jnp.asarray([layout.free_joints[k] for k in layout.limit_slots])
         e = rot.quat_to_rotvec(rot.quat_multiply(q[js], rot.quat_conjugate(q_ref[js])))
         reg_res = reg_res.at[ks].set(e)
-        reg_jac = reg_jac.at[ks].set(matmul(_left_jacobian_inverse(e), E[ks]))
+        reg_jac = reg_jac.at[ks].set(matmul(rot.left_jacobian_inverse(e), E[ks]))
     block = einsum("kl,kab->kalb", jnp.diag(sqrt_w), reg_jac).reshape(3 * nfree, 3 * nfree)
     return (sqrt_w[:, None] * reg_res).reshape(3 * nfree), jnp.concatenate([jnp.zeros((3 * nfree, off), dtype), block], axis=1)
 

@@ -52,7 +52,7 @@ import solvers
 from .. import rotations as rot
 from .._errors import JaxanimError, check_float, check_shape
 from .._types import Array, Float
-from ._kinematics import _at_bodies, _check, _kinematics, _plan, _take, _targets
+from ._kinematics import _check, _dof_columns, _kinematics, _plan, _points, _take, _targets
 from ._robot import Robot
 
 #: The default ``position_tolerance``: 10 micrometres (robots are in metres).
@@ -167,11 +167,7 @@ def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
     )
 
 
-# --- SO(3) Jacobians --------------------------------------------------------------------------------
-
-
-_right_jacobian = rot.right_jacobian
-_left_jacobian_inverse = rot.left_jacobian_inverse
+# --- 3 x 3 products --------------------------------------------------------------------------------
 
 
 def _times(A, B):
@@ -214,9 +210,8 @@ def _frames(robot: Robot, lay: _Layout, qpos, dtype):
     """Target points ``[K, 3]``, target frames ``[K, 3, 3]`` (body: ``xmat``; site: ``site_xmat``) and
     the kinematics they came from."""
     kin = _kinematics(robot, qpos, dtype)
-    R_world, p_world = kin[0], kin[1]
-    site_xpos = _at_bodies(R_world, p_world, list(robot.site_bodies), robot.site_pos, dtype)
-    points = _take(jnp.concatenate([p_world, site_xpos], axis=0), lay.rows)
+    R_world = kin[0]
+    points = _points(robot, R_world, kin[1], lay.rows, dtype)
     R = _take(R_world, lay.bodies)
     if any(s >= 0 for s in lay.sites):
         is_site = np.asarray([s >= 0 for s in lay.sites])
@@ -228,23 +223,10 @@ def _frames(robot: Robot, lay: _Layout, qpos, dtype):
 def _jacobian(robot: Robot, lay: _Layout, kin, points, delta, dtype):
     """``(jacp, jacr)`` ``[K, 3, n]``: the geometric Jacobian columns of the variables' dofs
     (:func:`~jaxanim.robots.jacobian`'s), rotation blocks times ``J_r(delta)``."""
-    plan = _plan(robot)
-    R_world, _, xanchor, xaxis = kin
-    B = robot.num_bodies
-    dofs = list(lay.var_dofs)
-    columns = jnp.swapaxes(R_world, 1, 2).reshape(3 * B, 3)  # row 3 b + c: column c of xmat_b
-    table = jnp.concatenate([xaxis, columns, jnp.eye(3, dtype=dtype)], axis=0)
-    dof_axis = _take(table, [plan.dof_src[d] for d in dofs])[None]  # [1, n, 3]
-    dof_anchor = _take(xanchor, [plan.dof_joint[d] for d in dofs])[None]
-    moves = plan.moves[np.asarray(lay.bodies)][:, np.asarray(dofs)]  # [K, n] static
-    is_rot = plan.dof_rot[np.asarray(dofs)]
-    rot_mask, lin_mask = (moves & is_rot)[:, :, None], (moves & ~is_rot)[:, :, None]
-    arm = jnp.cross(dof_axis, points[:, None, :] - dof_anchor)  # [K, n, 3]
-    jacp = jnp.where(rot_mask, arm, jnp.where(lin_mask, dof_axis, 0.0))
-    jacr = jnp.where(rot_mask, dof_axis, 0.0)
+    jacp, jacr = _dof_columns(robot, kin, points, lay.bodies, lay.var_dofs, dtype)
     if lay.rot_vars:  # column d of a rotation block <- sum_c column c J_r[c, d]
         cols = np.asarray(lay.rot_vars)  # [nb, 3]
-        Jr = _right_jacobian(delta)  # [nb, 3, 3]
+        Jr = rot.right_jacobian(delta)  # [nb, 3, 3]
 
         def blocks(jac):
             blk = jac[:, cols, :]  # [K, nb, 3 (c), 3 (xyz)]
@@ -274,7 +256,7 @@ def _errors_and_rows(lay, targets, points, R, jacp, jacr, dtype, weighted=True):
         e = rot.matrix_to_rotvec(_times(R[io], jnp.swapaxes(R_goal, -1, -2)))  # world frame
         res.append(sqrt_w[io, None] * e)
         if jacr is not None:
-            Li = _left_jacobian_inverse(e)
+            Li = rot.left_jacobian_inverse(e)
             rows.append(sqrt_w[io, None, None] * sum(Li[:, :, c, None] * jacr[io, c, None, :] for c in range(3)))
     order, kp = [], len(pos)
     for i in range(len(targets)):

@@ -302,27 +302,41 @@ def _targets(robot: Robot, names) -> tuple[tuple[int, ...], tuple[int, ...]]:
     return tuple(bodies), tuple(rows)
 
 
+def _points(robot: Robot, R_world, p_world, rows, dtype):
+    """World points ``[K, 3]`` of targets given as rows of ``[xpos (bodies); site_xpos (sites)]``."""
+    site_xpos = _at_bodies(R_world, p_world, list(robot.site_bodies), robot.site_pos, dtype)
+    return _take(jnp.concatenate([p_world, site_xpos], axis=0), rows)
+
+
+def _dof_columns(robot: Robot, kin, points, bodies, dofs, dtype):
+    """``(jacp, jacr)`` ``[K, n, 3]``: MuJoCo's Jacobian columns of the dofs ``dofs`` at the target
+    ``points`` on ``bodies`` (zero where a dof does not move the target's body); ``kin`` is
+    :func:`_kinematics`'s output."""
+    plan = _plan(robot)
+    R_world, _, xanchor, xaxis = kin
+    dofs = np.asarray(dofs, dtype=np.int64)
+    columns = jnp.swapaxes(R_world, 1, 2).reshape(3 * robot.num_bodies, 3)  # row 3 b + c: column c of xmat_b
+    table = jnp.concatenate([xaxis, columns, jnp.eye(3, dtype=dtype)], axis=0)
+    dof_axis = _take(table, [plan.dof_src[d] for d in dofs])[None]  # [1, n, 3]
+    dof_anchor = _take(xanchor, [plan.dof_joint[d] for d in dofs])[None]
+    moves = plan.moves[np.asarray(bodies)][:, dofs]  # [K, n] static
+    is_rot = plan.dof_rot[dofs]
+    rot_mask, lin_mask = (moves & is_rot)[:, :, None], (moves & ~is_rot)[:, :, None]
+    arm = jnp.cross(dof_axis, points[:, None, :] - dof_anchor)  # [K, n, 3]
+    jacp = jnp.where(rot_mask, arm, jnp.where(lin_mask, dof_axis, 0.0))
+    jacr = jnp.where(rot_mask, dof_axis, 0.0)
+    return jacp, jacr
+
+
 @eqx.filter_jit
 def _jac(robot: Robot, qpos, dtype, bodies: tuple[int, ...], rows: tuple[int, ...]):
-    plan = _plan(robot)
     K, nv = len(bodies), robot.nv
     if K == 0 or nv == 0:
         z = jnp.zeros((K, 3, nv), dtype)
         return z, z
-    R_world, p_world, xanchor, xaxis = _kinematics(robot, qpos, dtype)
-    site_xpos = _at_bodies(R_world, p_world, list(robot.site_bodies), robot.site_pos, dtype)
-    point = _take(jnp.concatenate([p_world, site_xpos], axis=0), rows)  # [K, 3]
-    B = robot.num_bodies
-    columns = jnp.swapaxes(R_world, 1, 2).reshape(3 * B, 3)  # row 3 b + c: column c of xmat_b
-    table = jnp.concatenate([xaxis, columns, jnp.eye(3, dtype=dtype)], axis=0)
-    dof_axis = _take(table, plan.dof_src)[None]  # [1, nv, 3]
-    dof_anchor = _take(xanchor, plan.dof_joint)[None]
-    moves = plan.moves[np.asarray(bodies)]  # [K, nv] static
-    rot_mask = (moves & plan.dof_rot)[:, :, None]
-    lin_mask = (moves & ~plan.dof_rot)[:, :, None]
-    arm = jnp.cross(dof_axis, point[:, None, :] - dof_anchor)  # [K, nv, 3]
-    jacp = jnp.where(rot_mask, arm, jnp.where(lin_mask, dof_axis, 0.0))
-    jacr = jnp.where(rot_mask, dof_axis, 0.0)
+    kin = _kinematics(robot, qpos, dtype)
+    points = _points(robot, kin[0], kin[1], rows, dtype)
+    jacp, jacr = _dof_columns(robot, kin, points, bodies, range(nv), dtype)
     return jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)
 
 
