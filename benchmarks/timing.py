@@ -91,7 +91,7 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 7, warmup: int 
 def row_limits(config: Any) -> tuple[float, int]:
     """``(seconds, samples)``: how long a row may sample and the fewest samples it takes: ``max_row_s`` and 3, or
     what is left of the section's time budget and 1 once that is shorter."""
-    limit = config.row_time_s() if hasattr(config, "row_time_s") else config.max_row_s
+    limit = config.row_time_s()
     return limit, 3 if limit >= config.max_row_s else 1
 
 
@@ -111,7 +111,7 @@ def sample_call(config: Any, fn: Callable[..., Any], args: tuple, first_s: float
 
 def budget_spent(config: Any) -> str | None:
     """The skipped reason of a row once the running section's time budget is spent, else ``None``."""
-    left = config.time_left() if hasattr(config, "time_left") else None
+    left = config.time_left()
     return None if left is None or left > 0 else f"not run (section time budget of {config.section_budget_s:g} s spent)"
 
 
@@ -152,8 +152,8 @@ class Runner:
         row: compile, first call and the fewest samples)."""
         if spent := budget_spent(self.config):
             return spent
-        left = self.config.time_left() if hasattr(self.config, "time_left") else None
-        budget_s = getattr(self.config, "section_budget_s", None)
+        left = self.config.time_left()
+        budget_s = self.config.section_budget_s
         timed = [r for r in self.table.rows if r.implementation == impl and r.measured and r.batch is not None
                  and batch is not None and r.time_median_s is not None]
         prev = [r for r in timed if r.dtype == dtype and r.batch < batch]
@@ -216,7 +216,7 @@ class Runner:
                 self._failed[key] = f"failed at batch {batch} (see that row)"
         self._log(row)
         self.table.rows.append(row)
-        if (on_row := getattr(self.config, "on_row", None)) is not None:
+        if (on_row := self.config.on_row) is not None:
             on_row(self.table)
         return row if row.measured else None
 

@@ -101,8 +101,8 @@ def _optx_primal(inputs):
     state0 = solver.init(fn, y0, args, options, f_struct, aux_struct, tags)
     dynamic0, static = eqx.partition(state0, eqx.is_array)
     # optimistix 0.1.0 starts its scalars (the trust region's step size, Dogleg's norms) as `jnp.array(0.0 or
-    # 1.0)`, float64 under x64, which then meet a float32 problem's residuals: they take y0's dtype here, and
-    # every step's state keeps the dtypes of the first
+    # 1.0)`, float64 under x64, which then meet a float32 problem's residuals: they take y0's dtype here (the
+    # steps then keep it)
     dynamic0 = jax.tree.map(_scalar_as(y0.dtype), dynamic0)
 
     def terminate(y, state):  # optimistix checks the iterate the step started from
@@ -127,9 +127,8 @@ def _optx_primal(inputs):
         state = eqx.combine(static, c.state)
         y, new_state, _aux = solver.step(fn, c.y, args, options, state, tags)
         t, result = terminate(c.y, new_state)
-        new_dynamic = jax.tree.map(lambda a, a0: a.astype(a0.dtype), eqx.filter(new_state, eqx.is_array), dynamic0)
         return _OptxLoop(
-            y=y, state=new_dynamic, terminate=t, result=result, user=user_stop(y, new_state)
+            y=y, state=eqx.filter(new_state, eqx.is_array), terminate=t, result=result, user=user_stop(y, new_state)
         )
 
     def done(c: _OptxLoop):
@@ -182,8 +181,7 @@ class OptimistixSolver(_AbstractAdapter):
     float32 works with x64 on or off: optimistix 0.1.0 starts its trust-region scalars as
     ``jnp.array(1.0)``, float64 under x64, which ``optx.least_squares`` itself then cannot combine
     with a float32 problem ("Vector and operator structures do not match"); the adapter gives the
-    solver state's floating scalars ``y0``'s dtype and keeps each step's state in the dtypes of
-    the first. The adapter uses optimistix 0.1.0's internals
+    solver state's floating scalars ``y0``'s dtype (the steps keep it). The adapter uses optimistix 0.1.0's internals
     (``_iterate``'s loop, ``NoneAux``/``OutAsArray``, the Gauss-Newton state), so it follows that
     version.
 
