@@ -13,7 +13,8 @@ import jax
 import numpy as np
 
 from .._errors import JaxanimError
-from ..ik._contacts import _clip_positions, clean_foot_contacts
+from ..ik import clean_foot_contacts
+from ..kinematics._contacts import _clip_positions
 from ..skeleton._bvh import write_bvh
 from ..skeleton._clips import resample
 from ._common import _UI, _duration, _load, _num

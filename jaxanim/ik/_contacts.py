@@ -17,13 +17,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._errors import JaxanimError
 from .._types import Array, Bool, Float
-from ..kinematics._fk import forward_kinematics
+from ..kinematics._contacts import _clip_positions, _contacts, _feet, detect_foot_contacts, foot_joints
 from ..skeleton._skeleton import Motion, Skeleton
 from ._solve import IKOptions, solve_ik_clip
 from ._targets import Target
@@ -49,107 +48,6 @@ class FootCleanup(eqx.Module):
     targets: Float[Array, "frames feet 3"]
     errors: Float[Array, "frames feet"]
     success: Bool[Array, " frames"]
-
-
-_forward_kinematics = eqx.filter_jit(forward_kinematics)
-
-
-def _rest_positions(skeleton: Skeleton) -> np.ndarray:
-    """World joint positions of the rest pose (identity rotations, OFFSETs), ``[joints, 3]``."""
-    rest = skeleton.rest_rotations(jnp.asarray(skeleton.offsets).dtype)
-    return np.asarray(_forward_kinematics(skeleton, rest, None).positions, dtype=np.float64)
-
-
-def foot_joints(skeleton: Skeleton, *, up: int = 1, count: int = 2) -> tuple[str, ...]:
-    """The feet of a skeleton: its ``count`` lowest leaf joints in the rest pose (joints without
-    child joints; an End Site does not count as a child), in joint order.
-
-    On a humanoid these are the toe joints (or the ankles of a skeleton without toes).
-
-    Raises:
-        JaxanimError: the tree has fewer than ``count`` leaf joints, or ``up`` is not 0, 1 or 2.
-    """
-    if up not in (0, 1, 2):
-        raise JaxanimError(f"up: expected the index of the up axis, 0, 1 or 2, got {up!r}")
-    has_child = set(p for p in skeleton.parents if p >= 0)
-    leaves = [j for j in range(skeleton.num_joints) if j not in has_child]
-    if len(leaves) < count:
-        raise JaxanimError(f"the skeleton has {len(leaves)} leaf joints, fewer than the {count} feet asked for")
-    height = _rest_positions(skeleton)[:, up]
-    lowest = sorted(leaves, key=lambda j: (height[j], j))[:count]
-    return tuple(skeleton.names[j] for j in sorted(lowest))
-
-
-def _leg_length(skeleton: Skeleton, feet: Sequence[int], up: int) -> float:
-    """Rest height of the root above the lowest foot: the scale of the default thresholds."""
-    pos = _rest_positions(skeleton)
-    length = float(pos[0, up] - min(pos[j, up] for j in feet))
-    return length if length > 0 else float(np.sum(np.abs(np.asarray(skeleton.offsets))))
-
-
-def _feet(skeleton: Skeleton, feet, up: int) -> tuple[tuple[str, ...], list[int]]:
-    if feet is None:
-        feet = foot_joints(skeleton, up=up)
-    elif isinstance(feet, str):
-        feet = (feet,)
-    feet = tuple(str(f) for f in feet)
-    if not feet:
-        raise JaxanimError("feet: expected at least one joint name")
-    unknown = [f for f in feet if f not in skeleton.names]
-    if unknown:
-        raise JaxanimError(f"feet: unknown joint names {unknown}; the skeleton's joints are {list(skeleton.names)}")
-    return feet, [skeleton.index(f) for f in feet]
-
-
-@eqx.filter_jit
-def _clip_positions(skeleton: Skeleton, motion: Motion):
-    return jax.vmap(lambda q, t: forward_kinematics(skeleton, q, t).positions)(motion.rotations, motion.translations)
-
-
-def detect_foot_contacts(
-    skeleton: Skeleton,
-    motion: Motion,
-    feet: Sequence[str] | str | None = None,
-    *,
-    up: int = 1,
-    ground: float | None = None,
-    height: float | None = None,
-    speed: float | None = None,
-) -> tuple[tuple[str, ...], np.ndarray]:
-    """Frames where each foot is on the ground: low **and** slow.
-
-    A foot touches in frame ``f`` when its height above the ground is at most ``height`` and its
-    speed (central differences, 3-D) at most ``speed``.
-
-    Args:
-        skeleton, motion: the clip.
-        feet: foot joint names (default :func:`foot_joints`: the two lowest leaf joints at rest).
-        up: the index of the up axis (BVH: 1, Y up).
-        ground: the ground's height (default: the lowest foot height of the clip).
-        height: in file units (default ``0.06 L``, ``L`` the rest height of the root above the
-            lowest foot: about 5 cm on an adult).
-        speed: in file units per second (default ``0.5 L`` per second, about 0.45 m/s).
-
-    Returns:
-        ``(feet, contacts)``: the foot names and a ``[frames, feet]`` bool NumPy array.
-    """
-    motion.check_skeleton(skeleton, "motion")
-    feet, idx = _feet(skeleton, feet, up)
-    P = np.asarray(_clip_positions(skeleton, motion))[:, idx]  # [F, feet, 3]
-    return feet, _contacts(skeleton, idx, P, float(motion.frame_time), up, ground, height, speed)
-
-
-def _contacts(skeleton, idx, P, dt, up, ground, height, speed):
-    scale = _leg_length(skeleton, idx, up)
-    height = 0.06 * scale if height is None else float(height)
-    speed = 0.5 * scale if speed is None else float(speed)
-    for name, value in (("height", height), ("speed", speed)):
-        if not value > 0:
-            raise JaxanimError(f"{name}: expected a positive threshold, got {value!r}")
-    h = P[..., up]
-    ground = float(h.min()) if ground is None else float(ground)
-    v = np.linalg.norm(np.gradient(P, dt, axis=0), axis=-1) if P.shape[0] > 1 else np.zeros(h.shape)
-    return (h - ground <= height) & (v <= speed)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

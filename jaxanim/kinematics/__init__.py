@@ -1,7 +1,11 @@
 """Forward kinematics, its inverse (global to local), center of mass, geometric Jacobians and the
-retraction that matches them, joint limits.
+retraction that matches them, joint limits, and the foot contacts of a clip.
 """
 
+from ._contacts import (
+    detect_foot_contacts as detect_foot_contacts,
+    foot_joints as foot_joints,
+)
 from ._fk import (
     FKResult as FKResult,
     center_of_mass as center_of_mass,
