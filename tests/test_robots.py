@@ -445,7 +445,7 @@ def test_every_product_states_precision_highest(tiny):
     ):
         text = jax.jit(f).lower(robot, qs[0].astype(np.float32)).as_text()
         dots = [line for line in text.splitlines() if re.search(r"stablehlo\.(dot_general|dot)\b", line)]
-        assert dots, name
+        assert dots or name != "center_of_mass", name  # FK and Jacobians multiply 3 x 3 blocks elementwise
         bad = [line for line in dots if "precision = [HIGHEST, HIGHEST]" not in line]
         assert not bad, f"{name}: {len(bad)} of {len(dots)} dots without precision HIGHEST"
 

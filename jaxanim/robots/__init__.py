@@ -1,6 +1,7 @@
 """Robots as kinematic trees: MJCF / URDF loading (through MuJoCo), forward kinematics, geometric
 Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding, and
-inverse kinematics (:func:`solve_ik_robot`, also reached through ``jaxanim.ik.solve_ik(robot, ...)``).
+inverse kinematics (:func:`solve_ik_robot`, also reached through ``jaxanim.ik.solve_ik(robot, ...)``),
+and retargeting of human motion onto robots (:func:`retarget`: one problem per clip, planted feet).
 
 Loading needs the optional extra: ``pip install 'jaxanim[robots]'``.
 """
@@ -27,4 +28,12 @@ from ._mapping import (
     calibrate as calibrate,
     load_mapping as load_mapping,
 )
+from ._retarget import retarget as retarget, retarget_clips as retarget_clips
+from ._retarget_diagnostics import RetargetDiagnostics as RetargetDiagnostics, diagnostics as diagnostics, summary as summary
+from ._retarget_problem import (
+    RetargetProblem as RetargetProblem,
+    prepare_retarget as prepare_retarget,
+    stack_problems as stack_problems,
+)
+from ._retarget_solve import RetargetOptions as RetargetOptions, RetargetResult as RetargetResult, solve_retarget as solve_retarget
 from ._robot import Robot as Robot

@@ -156,8 +156,8 @@ def _walk(parents: tuple[int, ...], R_loc, t_loc):
     Rs, ts = [R_prev], [t_prev]
     for row, par in zip(levels[1:], par_local):
         R_par, t_par = _take(R_prev, par), _take(t_prev, par)
-        t_prev = t_par + einsum("bxy,by->bx", R_par, _take(t_loc, row))
-        R_prev = einsum("bxy,byz->bxz", R_par, _take(R_loc, row))
+        t_prev = t_par + _mv(R_par, _take(t_loc, row))
+        R_prev = _mm(R_par, _take(R_loc, row))
         Rs.append(R_prev)
         ts.append(t_prev)
     return _take(jnp.concatenate(Rs, axis=0), inverse), _take(jnp.concatenate(ts, axis=0), inverse)
@@ -171,6 +171,18 @@ def _check(robot, qpos):
     qpos = jnp.asarray(qpos)
     dtype = jnp.result_type(robot.body_pos.dtype, qpos.dtype, float)
     return qpos.astype(dtype), dtype
+
+
+def _mm(A, B):
+    """``A @ B`` over the last two axes of 3 x 3 blocks, written elementwise: XLA:CPU runs a batch of
+    tiny dots slowly, and nested ``vmap`` s of them have met an XLA layout bug (a dot's batch
+    dimensions out of order)."""
+    return sum(A[..., :, c, None] * B[..., None, c, :] for c in range(3))
+
+
+def _mv(A, v):
+    """``A @ v`` for 3 x 3 blocks and 3-vectors, elementwise (see :func:`_mm`)."""
+    return sum(A[..., :, c] * v[..., None, c] for c in range(3))
 
 
 def _eye(n, dtype):
@@ -187,7 +199,7 @@ def _joint_transforms(plan: _Plan, robot: Robot, qpos, dtype):
     quat = jnp.where((plan.ball | plan.free)[:, None], quat_q, rot.axis_angle_to_quat(axis, angle))
     R = rot.quat_to_matrix(quat)  # normalises the qpos quaternions, as MuJoCo does
     anchor = jnp.where(plan.free[:, None], 0.0, robot.jnt_pos.astype(dtype))
-    t = anchor - einsum("jab,jb->ja", R, anchor) + shift[:, None] * axis
+    t = anchor - _mv(R, anchor) + shift[:, None] * axis
     t = jnp.where(plan.free[:, None], qpos[np.asarray(plan.q_pos)], t)
     return R, t, anchor
 
@@ -206,8 +218,8 @@ def _kinematics(robot: Robot, qpos, dtype):
         t_pad = jnp.concatenate([t_j, jnp.zeros((1, 3), dtype)], axis=0)
         R_after, t_after = [], []
         for slot in plan.slots:
-            t_loc = t_loc + einsum("bxy,by->bx", R_loc, _take(t_pad, slot))
-            R_loc = einsum("bxy,byz->bxz", R_loc, _take(R_pad, slot))
+            t_loc = t_loc + _mv(R_loc, _take(t_pad, slot))
+            R_loc = _mm(R_loc, _take(R_pad, slot))
             R_after.append(R_loc)
             t_after.append(t_loc)
     R_world, p_world = _walk(plan.parents_fk, R_loc, t_loc)
@@ -219,10 +231,10 @@ def _kinematics(robot: Robot, qpos, dtype):
     t_a = _take(jnp.concatenate(t_after, axis=0), plan.after)
     R_par = _take(R_world, plan.jnt_parent)
     p_par = _take(p_world, plan.jnt_parent)
-    R_jw = einsum("jxy,jyz->jxz", R_par, R_a)
-    p_jw = p_par + einsum("jxy,jy->jx", R_par, t_a)
-    xanchor = p_jw + einsum("jxy,jy->jx", R_jw, anchor)
-    xaxis = einsum("jxy,jy->jx", R_jw, robot.jnt_axis.astype(dtype))
+    R_jw = _mm(R_par, R_a)
+    p_jw = p_par + _mv(R_par, t_a)
+    xanchor = p_jw + _mv(R_jw, anchor)
+    xaxis = _mv(R_jw, robot.jnt_axis.astype(dtype))
     return R_world, p_world, xanchor, xaxis
 
 
@@ -230,7 +242,7 @@ def _at_bodies(R_world, p_world, bodies, pos, dtype):
     """World positions of points given in body frames: ``p_b + R_b pos``."""
     if not bodies:
         return jnp.zeros((0, 3), dtype)
-    return _take(p_world, bodies) + einsum("sxy,sy->sx", _take(R_world, bodies), pos.astype(dtype))
+    return _take(p_world, bodies) + _mv(_take(R_world, bodies), pos.astype(dtype))
 
 
 @eqx.filter_jit
@@ -241,7 +253,7 @@ def _fk(robot: Robot, qpos, dtype) -> RobotFK:
     site_xpos = _at_bodies(R_world, p_world, sites, robot.site_pos, dtype)
     if sites:
         R_site = rot.quat_to_matrix(robot.site_quat.astype(dtype))
-        site_xmat = einsum("sxy,syz->sxz", _take(R_world, sites), R_site)
+        site_xmat = _mm(_take(R_world, sites), R_site)
     else:
         site_xmat = jnp.zeros((0, 3, 3), dtype)
     return RobotFK(p_world, R_world, rot.matrix_to_quat(R_world), xipos, site_xpos, site_xmat)

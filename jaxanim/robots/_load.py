@@ -202,6 +202,40 @@ def _names(model, obj, n: int) -> tuple[str, ...]:
     return tuple(mujoco.mj_id2name(model, obj, i) or "" for i in range(n))
 
 
+def _surface_points(model) -> tuple[tuple[int, ...], np.ndarray, np.ndarray]:
+    """``(bodies, points [P, 3], radii [P])``: each geom's points in its body's frame (see
+    :class:`Robot`'s ``point_pos``). Planes, height fields and meshes give none."""
+    mujoco = _import_mujoco()
+    G = mujoco.mjtGeom
+    bodies, points, radii = [], [], []
+    ring = np.stack([np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)], axis=1)
+    for g in range(model.ngeom):
+        b, t, size = int(model.geom_bodyid[g]), int(model.geom_type[g]), np.array(model.geom_size[g], np.float64)
+        if b == 0:
+            continue
+        if t == G.mjGEOM_SPHERE:
+            local, r = np.zeros((1, 3)), size[0]
+        elif t == G.mjGEOM_CAPSULE:
+            local, r = np.array([[0, 0, -size[1]], [0, 0, size[1]]]), size[0]
+        elif t == G.mjGEOM_BOX:
+            local, r = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * size, 0.0
+        elif t == G.mjGEOM_CYLINDER:
+            rim = np.concatenate([size[0] * ring, np.zeros((8, 1))], axis=1)
+            local, r = np.concatenate([rim - [0, 0, size[1]], rim + [0, 0, size[1]]]), 0.0
+        elif t == G.mjGEOM_ELLIPSOID:
+            local, r = np.concatenate([np.diag(size), -np.diag(size)]), 0.0
+        else:
+            continue
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, np.array(model.geom_quat[g], np.float64))
+        pts = local @ R.reshape(3, 3).T + np.array(model.geom_pos[g], np.float64)
+        bodies += [b] * len(pts)
+        points.append(pts)
+        radii += [r] * len(pts)
+    pos = np.concatenate(points) if points else np.zeros((0, 3))
+    return tuple(bodies), pos, np.asarray(radii, np.float64)
+
+
 def robot_from_mujoco(model, *, dtype=None) -> Robot:
     """The :class:`Robot` of a compiled ``mujoco.MjModel`` (its kinematic fields, copied).
 
@@ -224,6 +258,7 @@ def robot_from_mujoco(model, *, dtype=None) -> Robot:
     parents = [int(p) for p in model.body_parentid]
     parents[0] = -1
     name = bytes(model.names).split(b"\0", 1)[0].decode()  # the model's name opens the names buffer
+    point_bodies, point_pos, point_radius = _surface_points(model)
     return Robot(
         name=name,
         body_names=_names(model, mujoco.mjtObj.mjOBJ_BODY, B),
@@ -249,4 +284,7 @@ def robot_from_mujoco(model, *, dtype=None) -> Robot:
         site_pos=arr(model.site_pos, (S, 3)),
         site_quat=arr(model.site_quat, (S, 4)),
         qpos0=arr(model.qpos0, (model.nq,)),
+        point_bodies=point_bodies,
+        point_pos=arr(point_pos, (len(point_bodies), 3)),
+        point_radius=arr(point_radius, (len(point_bodies),)),
     )

@@ -117,6 +117,12 @@ class Robot(eqx.Module):
         jnt_range: ``[joints, 2]`` lower and upper bound (rad or m); ``(-inf, inf)`` where not limited.
         site_pos, site_quat: ``[sites, 3]``, ``[sites, 4]`` site pose in its body's frame.
         qpos0: ``[nq]`` the reference configuration (hinges and slides are measured from it).
+        point_bodies: ``[points]`` the body of each surface point (static; empty: no geometry).
+        point_pos: ``[points, 3]`` points of the bodies' geoms in the body frame (m): a sphere's or a
+            capsule end's centre, a box's corners, points on a cylinder's rims and an ellipsoid's
+            axes. A body's lowest surface point is ``min(z(point) - point_radius)`` over its points:
+            what the retargeting keeps on and above the ground.
+        point_radius: ``[points]`` the radius around each point (sphere, capsule; 0 for corners).
     """
 
     name: str = eqx.field(static=True)
@@ -143,6 +149,9 @@ class Robot(eqx.Module):
     site_pos: Float[Array, "sites 3"] = eqx.field(converter=jnp.asarray)
     site_quat: Float[Array, "sites 4"] = eqx.field(converter=jnp.asarray)
     qpos0: Float[Array, " nq"] = eqx.field(converter=jnp.asarray)
+    point_bodies: tuple[int, ...] = eqx.field(static=True, default=())
+    point_pos: Float[Array, "points 3"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 3)))
+    point_radius: Float[Array, " points"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0,)))
 
     def __check_init__(self):
         _validate_structure(self)
@@ -155,6 +164,8 @@ class Robot(eqx.Module):
             ("jnt_range", (J, 2), "(joints, 2)"),
             ("site_pos", (S, 3), "(sites, 3)"), ("site_quat", (S, 4), "(sites, 4)"),
             ("qpos0", (self.nq,), "(nq,)"),
+            ("point_pos", (len(self.point_bodies), 3), "(points, 3)"),
+            ("point_radius", (len(self.point_bodies),), "(points,)"),
         ):  # fmt: skip
             check_shape(field, getattr(self, field), shape, what=f"{what} = {tuple(shape)}")
 

@@ -1,0 +1,287 @@
+"""One clip's retargeting problem, prepared on the host: what :func:`solve_retarget` needs as arrays.
+
+:func:`prepare_retarget` runs the source's forward kinematics, turns every mapped joint into a target
+in the robot's frame (the map's axes; positions relative to the source's ground, not yet scaled, so
+that the scale stays a differentiable array), detects the source's stance phases
+(:func:`jaxanim.kinematics.detect_foot_contacts`) and computes one anchor per stance phase and foot:
+the mean of the foot's path over the phase (horizontal) and the mean heading of its target
+orientation, with the foot flat (its zero-pose tilt). Clips are padded to a common length with a
+mask (:func:`stack_problems`), so a batch of clips is one ``vmap``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import rotations as rot
+from .._errors import JaxanimError
+from .._types import Array, Bool, Float
+from ..kinematics._contacts import detect_foot_contacts
+from ..kinematics._fk import forward_kinematics as skeleton_fk
+from ..skeleton._skeleton import Motion, Skeleton
+from ._kinematics import _targets, forward_kinematics
+from ._mapping import Calibration, RetargetMap, calibrate, load_mapping
+from ._robot import Robot
+
+__all__ = ["RetargetProblem", "prepare_retarget", "stack_problems"]
+
+
+class RetargetProblem(eqx.Module):
+    """One clip's retargeting problem (:func:`prepare_retarget`). Names and indices static, numbers
+    arrays; ``K`` targets (the root first, then the map's pairs), ``F`` feet, ``T`` frames (padded).
+
+    Attributes:
+        names: ``[K]`` the robot bodies / sites matched (static).
+        bodies, rows: ``[K]`` each target's body and its row in ``[xpos; site_xpos]`` (static).
+        feet: ``[F]`` the target index of each foot pair (static).
+        foot_points: ``[F]`` the robot's surface points of each foot: its body's and its descendants'
+            (indices into ``Robot.point_pos``; static).
+        positions: ``[T, K, 3]`` the source joints in the robot's axes, above the source's ground, in
+            source units (the target is ``scale * positions + lift * z``).
+        orientations: ``[T, K, 4]`` wxyz world orientation targets (``axes R_source offset``).
+        position_weight, orientation_weight: ``[K]`` the matching weights (the root's are 1).
+        scale: the human-to-robot scale.
+        contacts: ``[T, F]`` the source's stance frames of each foot.
+        anchors: ``[T, F, 2]`` the unscaled horizontal anchor of the stance phase a frame is in.
+        anchor_orientations: ``[T, F, 4]`` the planted foot's wxyz orientation in that phase.
+        stance_height: ``[F]`` the source foot's median height in its stance frames (source units).
+        foot_height: ``[F]`` the robot foot target's height above its lowest surface point, standing
+            flat (its zero pose), m.
+        mask: ``[T]`` the clip's frames (``False``: padding).
+        frame_time: seconds per frame.
+    """
+
+    names: tuple[str, ...] = eqx.field(static=True)
+    bodies: tuple[int, ...] = eqx.field(static=True)
+    rows: tuple[int, ...] = eqx.field(static=True)
+    feet: tuple[int, ...] = eqx.field(static=True)
+    foot_points: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    positions: Float[Array, "T K 3"]
+    orientations: Float[Array, "T K 4"]
+    position_weight: Float[Array, " K"]
+    orientation_weight: Float[Array, " K"]
+    scale: Float[Array, ""]
+    contacts: Bool[Array, "T F"]
+    anchors: Float[Array, "T F 2"]
+    anchor_orientations: Float[Array, "T F 4"]
+    stance_height: Float[Array, " F"]
+    foot_height: Float[Array, " F"]
+    mask: Bool[Array, " T"]
+    frame_time: Float[Array, ""]
+
+    @property
+    def num_frames(self) -> int:
+        return self.positions.shape[-3]
+
+    @property
+    def lift(self) -> Array:
+        """The height added to the scaled source: its stance feet land at the robot's foot heights."""
+        return jnp.mean(self.foot_height) - self.scale * jnp.mean(self.stance_height)
+
+    def target_positions(self) -> Float[Array, "T K 3"]:
+        """The position targets in the robot's frame, m: ``scale * positions + lift * z``."""
+        up = jnp.zeros(3, self.positions.dtype).at[2].set(1)
+        return self.scale * self.positions + (self.lift * up)[None, None, :]
+
+    def anchor_positions(self) -> Float[Array, "T F 3"]:
+        """The planted feet's positions, m: the scaled anchor at the foot's standing height."""
+        h = jnp.broadcast_to(self.foot_height, self.anchors.shape[:-1])[..., None]
+        return jnp.concatenate([self.scale * self.anchors, h], axis=-1)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    m = np.concatenate([[False], mask, [False]])
+    edges = np.flatnonzero(m[1:] != m[:-1])
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
+
+
+def _descendants(robot: Robot, body: int) -> set[int]:
+    out = {body}
+    for b in range(body + 1, robot.num_bodies):
+        if robot.body_parents[b] in out:
+            out.add(b)
+    return out
+
+
+def _yaw(R: np.ndarray) -> np.ndarray:
+    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+
+
+def _rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _quat(R: np.ndarray) -> np.ndarray:
+    return np.asarray(rot.quat_canonical(rot.matrix_to_quat(jnp.asarray(R))), np.float64)
+
+
+def _with_root(mapping: RetargetMap) -> RetargetMap:
+    """The map with its root as pair 0 (weights 1; its offset computed)."""
+    one = jnp.ones(1, mapping.position_weight.dtype)
+    return RetargetMap(
+        root_source=mapping.root_source, root_target=mapping.root_target,
+        sources=(mapping.root_source,) + mapping.sources, targets=(mapping.root_target,) + mapping.targets,
+        feet=(False,) + mapping.feet, source_up=mapping.source_up, auto_scale=mapping.auto_scale,
+        given_offsets=(False,) + mapping.given_offsets,
+        position_weight=jnp.concatenate([one, mapping.position_weight]),
+        orientation_weight=jnp.concatenate([one, mapping.orientation_weight]),
+        offset=jnp.concatenate([jnp.asarray([[1.0, 0.0, 0.0, 0.0]], mapping.offset.dtype), mapping.offset]),
+        scale=mapping.scale)
+
+
+def _check_robot(robot: Robot, root_body: int) -> None:
+    free = [j for j, t in enumerate(robot.jnt_types) if t == "free"]
+    b = root_body
+    while b > 0 and not any(robot.jnt_bodies[j] == b for j in free):
+        b = robot.body_parents[b]
+    if b <= 0:
+        raise JaxanimError(
+            f"robot: the root target {robot.body_names[root_body]!r} is not moved by a free joint, so the robot "
+            "cannot follow the clip through the world; load it with load_robot(path, floating_base=True)")
+
+
+def prepare_retarget(
+    skeleton: Skeleton,
+    motion: Motion,
+    robot: Robot,
+    mapping,
+    *,
+    calibration: Calibration | None = None,
+    contacts=None,
+    length: int | None = None,
+) -> RetargetProblem:
+    """The retargeting problem of one clip (host work: forward kinematics, contacts, anchors).
+
+    Args:
+        skeleton, motion: the source clip (any BVH dialect); not modified.
+        robot: the robot, with a floating base (a free joint moving the root target).
+        mapping: a :class:`RetargetMap`, or a JSON path / dict for :func:`load_mapping`.
+        calibration: the axes, scale and offsets (default :func:`calibrate` of the map).
+        contacts: ``[frames, feet]`` the source's stance frames, one column per foot pair in map order
+            (default :func:`~jaxanim.kinematics.detect_foot_contacts` on the feet's source joints).
+        length: pad to this many frames (default: the clip's), for batching clips of different
+            lengths.
+
+    Raises:
+        JaxanimError: bad names in the map (listing the valid ones), a robot without a floating base,
+            a clip with NaN or inf, ``contacts`` of the wrong shape, ``length`` shorter than the clip.
+    """
+    mapping = mapping if isinstance(mapping, RetargetMap) else load_mapping(mapping)
+    if not isinstance(skeleton, Skeleton) or not isinstance(motion, Motion):
+        raise JaxanimError("skeleton, motion: expected a Skeleton and a Motion (jaxanim.read_bvh)")
+    motion.check_skeleton(skeleton, "motion")
+    T = motion.num_frames
+    bad = ~(np.all(np.isfinite(np.asarray(motion.rotations).reshape(T, -1)), axis=1)
+            & np.all(np.isfinite(np.asarray(motion.translations).reshape(T, -1)), axis=1))
+    if bad.any():
+        frames = np.flatnonzero(bad)
+        raise JaxanimError(f"motion: the clip has NaN or inf values in {len(frames)} frame(s), the first "
+                           f"{frames[:5].tolist()}; fix or cut those frames first")
+    if not np.isfinite(float(motion.frame_time)) or float(motion.frame_time) <= 0:
+        raise JaxanimError(f"motion: frame_time must be a positive number of seconds, got {float(motion.frame_time)}")
+    full = _with_root(mapping)
+    calib = calibrate(full, skeleton, robot) if calibration is None else calibration
+    offsets = np.asarray(calib.offset, np.float64)
+    if calibration is not None:  # a user's calibration has the pairs only: compute the root's
+        if offsets.shape[0] != mapping.num_pairs:
+            raise JaxanimError(f"calibration: expected offsets for the {mapping.num_pairs} pairs, got {offsets.shape[0]}")
+        offsets = np.concatenate([np.asarray(calibrate(full, skeleton, robot).offset, np.float64)[:1], offsets])
+    bodies, rows = _targets(robot, full.targets)
+    _check_robot(robot, bodies[0])
+    T, K = motion.num_frames, len(full.targets)
+    length = T if length is None else int(length)
+    if length < T:
+        raise JaxanimError(f"length: {length} is shorter than the clip ({T} frames)")
+    axes = np.asarray(calib.axes, np.float64)
+    src = [skeleton.names.index(n) for n in full.sources]
+    fk = jax.vmap(lambda q, t: skeleton_fk(skeleton, q, t))(motion.rotations, motion.translations)
+    P = np.asarray(fk.positions, np.float64)[:, src] @ axes.T  # [T, K, 3] in the robot's axes
+    R = axes @ np.asarray(fk.rotations, np.float64)[:, src]  # [T, K, 3, 3]
+    R_target = R @ _rot_matrices(offsets)
+    feet_k = [k for k in range(K) if full.feet[k]]
+    foot_names = tuple(full.sources[k] for k in feet_k)
+    up = 1 if mapping.source_up == "y" else 2
+    if contacts is None:
+        _, contacts = detect_foot_contacts(skeleton, motion, feet=foot_names, up=up)
+    contacts = np.asarray(contacts)
+    if contacts.shape != (T, len(feet_k)):
+        raise JaxanimError(f"contacts: expected shape (frames, feet) = ({T}, {len(feet_k)}), got {contacts.shape}")
+    contacts = contacts.astype(bool)
+    ground = P[:, feet_k, 2].min()
+    P[..., 2] -= ground
+    # the robot's feet standing in the zero pose: height of each foot target above its lowest point
+    zero = forward_kinematics(robot, robot.qpos0)
+    p_rows = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])
+    R_rows = np.concatenate([np.asarray(zero.xmat, np.float64), np.asarray(zero.site_xmat, np.float64)])
+    pts_world = (np.einsum("pxy,py->px", np.asarray(zero.xmat, np.float64)[list(robot.point_bodies)],
+                           np.asarray(robot.point_pos, np.float64))
+                 + np.asarray(zero.xpos, np.float64)[list(robot.point_bodies)]) if robot.point_bodies else np.zeros((0, 3))
+    lowest = pts_world[:, 2] - np.asarray(robot.point_radius, np.float64) if robot.point_bodies else np.zeros(0)
+    foot_points, foot_height = [], []
+    for k in feet_k:
+        own = _descendants(robot, bodies[k])
+        idx = tuple(i for i, b in enumerate(robot.point_bodies) if b in own)
+        if not idx:
+            raise JaxanimError(f"robot: the foot {full.targets[k]!r} has no collision geometry (sphere, capsule, box, "
+                               "cylinder or ellipsoid) on it or below it, so its sole and the ground cannot be found")
+        foot_points.append(idx)
+        foot_height.append(p_rows[rows[k], 2] - lowest[list(idx)].min())
+    anchors = np.zeros((T, len(feet_k), 2))
+    anchor_R = np.broadcast_to(np.eye(3), (T, len(feet_k), 3, 3)).copy()
+    stance_height = np.zeros(len(feet_k))
+    for f, k in enumerate(feet_k):
+        R0 = R_rows[rows[k]]
+        runs = _runs(contacts[:, f])
+        for a, b in runs:
+            anchors[a:b, f] = P[a:b, k, :2].mean(axis=0)
+            heading = _yaw(R_target[a:b, k] @ R0.T)
+            anchor_R[a:b, f] = _rot_z(np.arctan2(np.sin(heading).mean(), np.cos(heading).mean())) @ R0
+        stance = contacts[:, f]
+        stance_height[f] = np.median(P[stance, k, 2]) if stance.any() else P[:, k, 2].min()
+    dtype = robot.qpos0.dtype
+    pad = length - T
+
+    def padded(x, fill=None):
+        x = np.asarray(x)
+        if not pad:
+            return x
+        tail = np.repeat(x[-1:], pad, axis=0) if fill is None else np.full((pad,) + x.shape[1:], fill, x.dtype)
+        return np.concatenate([x, tail])
+
+    return RetargetProblem(
+        names=full.targets, bodies=bodies, rows=rows, feet=tuple(feet_k), foot_points=tuple(foot_points),
+        positions=jnp.asarray(padded(P), dtype), orientations=jnp.asarray(padded(_quat(R_target)), dtype),
+        position_weight=jnp.asarray(full.position_weight, dtype),
+        orientation_weight=jnp.asarray(full.orientation_weight, dtype),
+        scale=jnp.asarray(calib.scale, dtype), contacts=jnp.asarray(padded(contacts, False)),
+        anchors=jnp.asarray(padded(anchors), dtype), anchor_orientations=jnp.asarray(padded(_quat(anchor_R)), dtype),
+        stance_height=jnp.asarray(stance_height, dtype), foot_height=jnp.asarray(foot_height, dtype),
+        mask=jnp.asarray(np.arange(length) < T), frame_time=jnp.asarray(float(motion.frame_time), dtype))
+
+
+def _rot_matrices(quats: np.ndarray) -> np.ndarray:
+    return np.asarray(rot.quat_to_matrix(jnp.asarray(quats)), np.float64)
+
+
+def stack_problems(problems: Sequence[RetargetProblem]) -> RetargetProblem:
+    """Stack problems of one robot and map, padded to one length (``prepare_retarget(..., length=)``),
+    along a new leading axis: the input of ``jax.vmap(solve_retarget, ...)``."""
+    problems = list(problems)
+    if not problems:
+        raise JaxanimError("problems: expected at least one RetargetProblem")
+    first = problems[0]
+    for i, p in enumerate(problems):
+        if not isinstance(p, RetargetProblem):
+            raise JaxanimError(f"problems[{i}]: expected a RetargetProblem, got {type(p).__name__}")
+        if (p.names, p.feet, p.foot_points) != (first.names, first.feet, first.foot_points):
+            raise JaxanimError(f"problems[{i}]: prepared with another robot or map than problems[0]")
+        if p.num_frames != first.num_frames:
+            raise JaxanimError(f"problems[{i}]: {p.num_frames} frames, problems[0] has {first.num_frames}; pad them to "
+                               "one length with prepare_retarget(..., length=)")
+    return jax.tree.map(lambda *x: jnp.stack(x), *problems)

@@ -1,0 +1,374 @@
+r"""The retargeting solve: one least-squares problem over the whole clip, O(T) per iteration.
+
+Variables: the robot's ``qpos`` at every frame, stepped in its tangent space (``nv`` numbers per frame:
+hinges and slides additive, a free joint's translation additive in the world, rotations
+``quat ⊗ exp(delta)`` with ``delta`` local, as in :func:`~jaxanim.robots.solve_ik_robot`).
+
+Cost (``s`` the scale, ``v_t = (q_{t+1} ⊖ q_t) / dt``, ``a_t = (v_t - v_{t-1}) / dt``)::
+
+    sum_t [ sum_k wp_k |p_k - p*_k|^2 + wo_k |log(R_k R*_k^T)|^2          matching (feet in stance: off)
+          + w_plant (|p_f - anchor_f|^2 + |log(R_f A_f^T)|^2)            planted feet, stance frames
+          + w_ground sum_points softmin(z - radius, 0)^2                  no penetration
+          + w_posture |q_joints - q0_joints|^2 ]                          posture prior
+    + sum_t [ w_v |v_t|^2 + w_a |a_t|^2 + w_vmax |v_t - clip(v_t, -vmax, vmax)|_joints^2 ] dt ...
+
+(all halved; the velocity and acceleration terms are those of each dof, the last one only over the
+hinges and slides). The joint ranges are hard bounds: every iterate is projected into them, and a
+coordinate at a bound whose gradient points out of the range is held there for the step (projected
+Gauss-Newton, Bertsekas 1982).
+
+Each iteration linearizes every frame's residual (one batched kinematics and Jacobian pass) and
+solves the Levenberg-Marquardt normal equations. Their matrix couples a frame with its two
+neighbours on each side (velocity: one, acceleration: two); grouped two frames to a block it is
+block tridiagonal and :func:`solvers.block_tridiagonal_solve` solves it in O(T) (``T/2`` Cholesky
+factorizations of ``2 nv``). In the smoothness terms the difference of two root rotations is
+linearized as ``delta_{t+1} - delta_t`` (exact to first order in the per-frame rotation, which is
+small at motion-capture frame rates).
+
+A fixed number of iterations (``RetargetOptions.iterations``) runs in a ``lax.scan``, so the result is
+differentiable with respect to the weights and the scale (reverse mode through the iterations).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import solvers
+
+from .. import rotations as rot
+from .._linalg import einsum
+from .._types import Array, Float
+from ._kinematics import _dof_columns, _kinematics, _mm, _mv, _plan, _points, _take
+from ._retarget_diagnostics import RetargetDiagnostics, diagnostics
+from ._tangent import _difference, _Layout, _retract
+from ._retarget_problem import RetargetProblem
+from ._robot import Robot
+
+__all__ = ["RetargetOptions", "RetargetResult", "solve_retarget"]
+
+
+class RetargetOptions(eqx.Module):
+    """Weights and settings of :func:`solve_retarget` (numbers are arrays: differentiable, and new
+    values do not recompile; ``iterations`` is static).
+
+    Attributes:
+        iterations: Levenberg-Marquardt iterations over the whole clip.
+        velocity_weight: ``w_v`` on every dof's velocity (in (rad/s)^-2 against the matching's m^-2:
+            the default 1e-6 weighs a velocity of 1 rad/s like a matching error of 1 mm).
+        acceleration_weight: ``w_a`` on every dof's acceleration.
+        plant_weight: ``w_plant`` on the planted feet's position (and orientation, in rad).
+        ground_weight: ``w_ground`` on each foot surface point below the ground.
+        posture_weight: ``w_posture`` pulling the joints towards the zero pose (unmatched joints).
+        max_joint_velocity: ``vmax`` of the hinges and slides (rad/s or m/s); ``inf``: none.
+        velocity_limit_weight: ``w_vmax`` on the joint speed above ``vmax``.
+        rtol: convergence: the last iteration changed the cost by at most ``rtol`` of it, or moved
+            no coordinate by more than ``xtol``.
+        xtol: see ``rtol`` (rad or m).
+    """
+
+    iterations: int = eqx.field(static=True, default=30)
+    velocity_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
+    acceleration_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
+    plant_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e3)
+    ground_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e3)
+    posture_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-4)
+    max_joint_velocity: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=20.0)
+    velocity_limit_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-2)
+    rtol: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-4)
+    xtol: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-7)
+
+
+class RetargetResult(eqx.Module):
+    """The robot's clip (:func:`solve_retarget`, :func:`~jaxanim.robots.retarget`).
+
+    Attributes:
+        qpos: ``[T, nq]`` the robot's configurations (MuJoCo's order; padding frames repeat the last).
+        fps: frames per second (the source's).
+        result: :class:`solvers.RESULTS`: ``successful`` (converged), ``max_steps_reached`` or
+            ``nonfinite``; per clip under ``vmap``.
+        success: converged and every value finite.
+        cost: the final cost.
+        num_steps: iterations run.
+        diagnostics: :class:`~jaxanim.robots.RetargetDiagnostics`, per frame.
+    """
+
+    qpos: Float[Array, "T nq"]
+    fps: Float[Array, ""]
+    result: solvers.RESULTS
+    success: Array
+    cost: Float[Array, ""]
+    num_steps: Array
+    diagnostics: RetargetDiagnostics
+
+
+# --- one frame's residual ------------------------------------------------------------------------------
+
+
+#: The length (m) over which the ground term softens: ``-eps softplus(-h / eps)``, smooth where the
+#: foot point touches the ground (``h = 0``), ``h`` well below it, and about 0 well above it.
+_GROUND_SOFTNESS = 2e-3
+
+
+def _sqrt(w):
+    """``sqrt(w)`` with a zero derivative at ``w = 0`` (a weight of 0 switches a term off; the plain
+    square root's infinite derivative there would make every gradient NaN)."""
+    positive = w > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, w, 1.0)), 0.0)
+
+
+class _Frame(eqx.Module):
+    """One frame's targets and weights (the per-frame slice of a problem; vmapped)."""
+
+    p: Array  # [K, 3]
+    R: Array  # [K, 3, 3]
+    wp: Array  # [K]
+    wo: Array  # [K]
+    anchor_p: Array  # [F, 3]
+    anchor_R: Array  # [F, 3, 3]
+    w_plant: Array  # [F]
+    w_ground: Array  # [F]
+    w_posture: Array  # []
+
+
+def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame, with_jacobian: bool = True):
+    """``(r [m], J [m, nv] or None)`` of one frame."""
+    dtype = q.dtype
+    kin = _kinematics(robot, q, dtype)
+    R_world, p_world = kin[0], kin[1]
+    bodies, rows = prob.bodies, prob.rows
+    points = _points(robot, R_world, p_world, rows, dtype)
+    R = _take(R_world, bodies)
+    sites = [r - robot.num_bodies if r >= robot.num_bodies else -1 for r in rows]
+    if any(s >= 0 for s in sites):
+        R_site = rot.quat_to_matrix(_take(robot.site_quat.astype(dtype), [max(s, 0) for s in sites]))
+        R = jnp.where(np.asarray([s >= 0 for s in sites])[:, None, None], _mm(R, R_site), R)
+    feet = list(prob.feet)
+    pts_idx = [i for f in prob.foot_points for i in f]
+    pt_bodies = [robot.point_bodies[i] for i in pts_idx]
+    Rb = _take(R_world, pt_bodies)
+    surface = _take(p_world, pt_bodies) + _mv(Rb, _take(robot.point_pos.astype(dtype), pts_idx))
+    height = surface[:, 2] - _take(robot.point_radius.astype(dtype), pts_idx)
+    e_match = rot.matrix_to_rotvec(_mm(R, jnp.swapaxes(fr.R, -1, -2)))
+    e_plant = rot.matrix_to_rotvec(_mm(R[np.asarray(feet)], jnp.swapaxes(fr.anchor_R, -1, -2)))
+    sp, so, spl = _sqrt(fr.wp)[:, None], _sqrt(fr.wo)[:, None], _sqrt(fr.w_plant)[:, None]
+    owner = np.asarray([f for f, idx in enumerate(prob.foot_points) for _ in idx])
+    sg = _sqrt(fr.w_ground)[owner]
+    soft = _GROUND_SOFTNESS
+    ground = -soft * jax.nn.softplus(-height / soft)
+    posture = q[lay.joint_q] - robot.qpos0.astype(dtype)[lay.joint_q]
+    r = jnp.concatenate([
+        (sp * (points - fr.p)).ravel(), (so * e_match).ravel(),
+        (spl * (points[np.asarray(feet)] - fr.anchor_p)).ravel(), (spl * e_plant).ravel(),
+        sg * ground, _sqrt(fr.w_posture) * posture])
+    if not with_jacobian:
+        return r, None
+    dofs = np.arange(robot.nv)
+    jacp, jacr = _dof_columns(robot, kin, points, bodies, dofs, dtype)  # [K, nv, 3]
+    jacp, jacr = jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)  # [K, 3, nv]
+    jz = _dof_columns(robot, kin, surface, pt_bodies, dofs, dtype)[0][:, :, 2]  # [P, nv]
+    Li = rot.left_jacobian_inverse(e_match)
+    Lp = rot.left_jacobian_inverse(e_plant)
+    Jo = sum(Li[:, :, c, None] * jacr[:, c, None, :] for c in range(3))
+    Jpl = sum(Lp[:, :, c, None] * jacr[np.asarray(feet)][:, c, None, :] for c in range(3))
+    Jpost = jnp.zeros((len(lay.joint_dofs), robot.nv), dtype).at[np.arange(len(lay.joint_dofs)), lay.joint_dofs].set(1.0)
+    J = jnp.concatenate([
+        (sp[:, :, None] * jacp).reshape(-1, robot.nv), (so[:, :, None] * Jo).reshape(-1, robot.nv),
+        (spl[:, :, None] * jacp[np.asarray(feet)]).reshape(-1, robot.nv), (spl[:, :, None] * Jpl).reshape(-1, robot.nv),
+        (sg * jax.nn.sigmoid(-height / soft))[:, None] * jz, _sqrt(fr.w_posture) * Jpost])
+    return r, J
+
+
+def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
+    """The per-frame targets and weights ``[T, ...]``: a foot's matching is off while it is planted."""
+    mask = prob.mask.astype(dtype)
+    contacts = prob.contacts.astype(dtype) * mask[:, None]
+    foot = np.zeros(len(prob.names), bool)
+    foot[list(prob.feet)] = True
+    planted = jnp.zeros((prob.num_frames, len(prob.names)), dtype).at[:, np.asarray(prob.feet)].set(contacts)
+    keep = mask[:, None] * (1.0 - planted)
+    return _Frame(
+        p=prob.target_positions().astype(dtype), R=rot.quat_to_matrix(prob.orientations.astype(dtype)),
+        wp=keep * prob.position_weight.astype(dtype)[None, :], wo=keep * prob.orientation_weight.astype(dtype)[None, :],
+        anchor_p=prob.anchor_positions().astype(dtype), anchor_R=rot.quat_to_matrix(prob.anchor_orientations.astype(dtype)),
+        w_plant=contacts * opts.plant_weight.astype(dtype), w_ground=jnp.broadcast_to(mask[:, None], contacts.shape) * opts.ground_weight.astype(dtype),
+        w_posture=mask * opts.posture_weight.astype(dtype))
+
+
+# --- the smoothness terms and the banded system ------------------------------------------------------------
+
+
+def _pair_terms(lay: _Layout, q, prob: RetargetProblem, opts: RetargetOptions):
+    """Velocity and velocity-limit terms (each pair ``t, t+1``: weight ``c [T-1, nv]``, offset ``o``:
+    cost ``1/2 c (o + delta_{t+1} - delta_t)^2``) and acceleration terms (``a [T-2, nv]``, offset
+    ``acc``, on ``delta_{t+2} - 2 delta_{t+1} + delta_t``), and their cost."""
+    dtype = q.dtype
+    fps = 1.0 / prob.frame_time.astype(dtype)
+    valid = prob.mask.astype(dtype)
+    dq = _difference(lay, q[:-1], q[1:])  # [T-1, nv] per frame
+    pair = (valid[:-1] * valid[1:])[:, None]
+    c_v = pair * opts.velocity_weight.astype(dtype) * fps**2
+    vmax = opts.max_joint_velocity.astype(dtype) / fps
+    limited = np.zeros(lay.nv, bool)
+    limited[lay.joint_dofs] = True
+    excess = jnp.where(limited[None, :], dq - jnp.clip(dq, -vmax, vmax), 0.0)
+    active = (excess != 0).astype(dtype)
+    c_l = pair * active * opts.velocity_limit_weight.astype(dtype) * fps**2
+    c = c_v + c_l
+    o = (c_v * dq + c_l * excess) / jnp.where(c > 0, c, 1.0)
+    ddq = dq[1:] - dq[:-1]
+    a = (valid[:-2] * valid[1:-1] * valid[2:])[:, None] * opts.acceleration_weight.astype(dtype) * fps**4
+    cost = 0.5 * (jnp.sum(c_v * dq**2) + jnp.sum(c_l * excess**2) + jnp.sum(a * ddq**2))
+    return c, o, a, ddq, cost
+
+
+def _gradient(Jtr, c, o, a, acc):
+    """``[T, n]`` the gradient of the cost in the tangent coordinates."""
+    g = Jtr.at[:-1].add(-c * o).at[1:].add(c * o)
+    return g.at[:-2].add(a * acc).at[1:-1].add(-2 * a * acc).at[2:].add(a * acc)
+
+
+def _normal_equations(JtJ, g, c, a, free, mu):
+    """Diagonal blocks ``[T, n, n]``, the first and second off-diagonal (diagonal) bands and the
+    gradient ``g [T, n]`` of the linearized cost, pinned coordinates (``free`` 0) removed."""
+    T, n = g.shape
+    d = jnp.zeros((T, n), g.dtype).at[:-1].add(c).at[1:].add(c)
+    d = d.at[:-2].add(a).at[1:-1].add(4 * a).at[2:].add(a)
+    e1 = (-c).at[:-1].add(-2 * a).at[1:].add(-2 * a) if T > 2 else -c  # H[t+1, t]
+    e2 = a  # H[t+2, t]
+    H = JtJ + jax.vmap(jnp.diag)(d)
+    diag = jnp.diagonal(H, axis1=1, axis2=2)
+    damp = mu * diag + mu * 1e-9 + 1e-12
+    H = H + jax.vmap(jnp.diag)(damp)
+    H = free[:, :, None] * H * free[:, None, :] + jax.vmap(jnp.diag)(1.0 - free)
+    e1 = e1 * free[:-1] * free[1:]
+    e2 = e2 * free[:-2] * free[2:]
+    return H, e1, e2, g * free, damp * free
+
+
+def _banded_solve(H, e1, e2, rhs):
+    """Solve the block-pentadiagonal system (diagonal off-diagonal bands) by pairing frames."""
+    T, n = rhs.shape
+    if T % 2:  # one identity frame more
+        H = jnp.concatenate([H, jnp.eye(n, dtype=H.dtype)[None]])
+        e1 = jnp.concatenate([e1, jnp.zeros((1, n), H.dtype)])
+        e2 = jnp.concatenate([e2, jnp.zeros((1, n), H.dtype)])
+        rhs = jnp.concatenate([rhs, jnp.zeros((1, n), H.dtype)])
+    N = H.shape[0] // 2
+    diag = jax.vmap(jnp.diag)
+    E1 = diag(e1[0::2])  # H[2s+1, 2s]
+    D = jnp.concatenate([jnp.concatenate([H[0::2], E1], axis=2), jnp.concatenate([E1, H[1::2]], axis=2)], axis=1)
+    if N > 1:
+        s = np.arange(1, N)
+        zero = jnp.zeros((N - 1, n, n), H.dtype)
+        top = jnp.concatenate([diag(e2[2 * s - 2]), diag(e1[2 * s - 1])], axis=2)  # H[2s, 2s-2], H[2s, 2s-1]
+        bottom = jnp.concatenate([zero, diag(e2[2 * s - 1])], axis=2)  # H[2s+1, 2s-2] = 0, H[2s+1, 2s-1]
+        B = jnp.concatenate([top, bottom], axis=1)
+    else:
+        B = jnp.zeros((0, 2 * n, 2 * n), H.dtype)
+    x, ok = solvers.block_tridiagonal_solve(D, B, rhs.reshape(N, 2 * n))
+    return x.reshape(2 * N, n)[:T], ok
+
+
+# --- the iteration ----------------------------------------------------------------------------------------
+
+
+def _linearize(robot, prob, lay, q, frames, opts):
+    """``(cost, J'J [T, n, n], J'r [T, n], pair terms)`` at ``q``."""
+    def one(qt, fr):
+        r, J = _frame_residual(robot, prob, lay, qt, fr)
+        return 0.5 * jnp.sum(r**2), einsum("mi,mj->ij", J, J), einsum("mi,m->i", J, r)
+
+    local, JtJ, Jtr = jax.vmap(one)(q, frames)
+    c, o, a, acc, smooth = _pair_terms(lay, q, prob, opts)
+    return jnp.sum(local) + smooth, JtJ, Jtr, (c, o, a, acc)
+
+
+def _free(lay: _Layout, rng, q, g, dtype):
+    """``[T, nv]`` 1 for a coordinate that may move, 0 for one at a bound that its gradient pushes out."""
+    free = jnp.ones(g.shape, dtype)
+    if lay.scalar_dofs.size and lay.bounded.any():
+        d, qa = lay.scalar_dofs[lay.bounded], lay.scalar_q[lay.bounded]
+        lo, hi = rng[lay.bounded, 0], rng[lay.bounded, 1]
+        x = q[:, qa]
+        eps = 1e-10 + 1e-9 * (hi - lo)
+        pinned = ((x <= (lo + eps)[None]) & (g[:, d] > 0)) | ((x >= (hi - eps)[None]) & (g[:, d] < 0))
+        free = free.at[:, d].set(jnp.where(pinned, 0.0, 1.0))
+    return free
+
+
+def _initial(robot: Robot, prob: RetargetProblem, dtype):
+    """Every frame at ``qpos0`` with the root's free joint on the root target."""
+    plan = _plan(robot)
+    b, free_j = prob.bodies[0], None
+    while b > 0 and free_j is None:
+        free_j = next((j for j in range(robot.num_joints) if robot.jnt_bodies[j] == b and plan.free[j]), None)
+        b = robot.body_parents[b]
+    q = jnp.broadcast_to(robot.qpos0.astype(dtype), (prob.num_frames, robot.nq))
+    a = robot.jnt_qposadr[free_j]
+    p = prob.target_positions().astype(dtype)[:, 0]
+    return q.at[:, a:a + 3].set(p).at[:, a + 3:a + 7].set(prob.orientations.astype(dtype)[:, 0])
+
+
+def _iterate(robot, prob, lay, rng, q0, frames, opts, iterations, dtype):
+    """``iterations`` Levenberg-Marquardt steps of the whole clip from ``q0``."""
+    lin0 = _linearize(robot, prob, lay, q0, frames, opts)
+
+    def step(carry, _):
+        q, lin, (mu, nu), last, last_dx = carry
+        cost, JtJ, Jtr, (c, o, a, acc) = lin
+        g = _gradient(Jtr, c, o, a, acc)
+        free = _free(lay, rng, q, g, dtype)
+        H, e1, e2, g, damp = _normal_equations(JtJ, g, c, a, free, mu)
+        delta, ok = _banded_solve(H, e1, e2, -g)
+        delta = jnp.where(ok, delta, 0.0)
+        q_new = jax.vmap(lambda qt, dt: _retract(lay, rng, qt, dt))(q, delta)
+        lin_new = _linearize(robot, prob, lay, q_new, frames, opts)
+        # Nielsen's damping update from the gain ratio: actual over the linear model's predicted decrease
+        predicted = 0.5 * (jnp.sum(damp * delta**2) - jnp.sum(g * delta))
+        cost_new = lin_new[0]
+        actual = cost - cost_new
+        accept = ok & jnp.isfinite(cost_new) & (actual > 0)
+        rho = actual / jnp.maximum(predicted, jnp.finfo(dtype).tiny)
+        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(accept, x, y), a, b)  # noqa: E731
+        change = jnp.where(accept, actual / jnp.maximum(cost, jnp.finfo(dtype).tiny), last)
+        dx = jnp.where(accept, jnp.max(jnp.abs(delta)), last_dx)
+        mu_acc = mu * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(rho, 0.0, 1.0) - 1.0) ** 3)
+        mu, nu = (jnp.where(accept, jnp.maximum(mu_acc, 1e-9), jnp.minimum(mu * nu, 1e9)),
+                  jnp.where(accept, 2.0, 2.0 * nu))
+        return (pick(q_new, q), pick(lin_new, lin), (mu, nu), change, dx), None
+
+    damping = (jnp.asarray(1e-2, dtype), jnp.asarray(2.0, dtype))
+    start = (q0, lin0, damping, jnp.asarray(jnp.inf, dtype), jnp.asarray(jnp.inf, dtype))
+    (q, lin, _, change, dx), _ = jax.lax.scan(step, start, None, length=iterations)
+    return q, lin[0], change, dx
+
+
+@eqx.filter_jit
+def _solve(robot: Robot, prob: RetargetProblem, opts: RetargetOptions):
+    dtype = prob.positions.dtype
+    lay = _Layout(robot)
+    rng = robot.jnt_range.astype(dtype)[lay.scalar_joints] if lay.scalar_dofs.size else jnp.zeros((0, 2), dtype)
+    frames = _frames(prob, opts, dtype)
+    q = jax.vmap(lambda q: _retract(lay, rng, q, jnp.zeros(robot.nv, dtype)))(_initial(robot, prob, dtype))
+    q, cost, change, dx = _iterate(robot, prob, lay, rng, q, frames, opts, opts.iterations, dtype)
+    finite = jnp.all(jnp.isfinite(q)) & jnp.isfinite(cost)
+    converged = (change <= opts.rtol.astype(dtype)) | (dx <= opts.xtol.astype(dtype))
+    result = solvers.RESULTS.where(~finite, solvers.RESULTS.nonfinite, solvers.RESULTS.where(
+        converged, solvers.RESULTS.successful, solvers.RESULTS.max_steps_reached))
+    return q, cost, result, finite & converged
+
+
+def solve_retarget(robot: Robot, problem: RetargetProblem, options: RetargetOptions | None = None) -> RetargetResult:
+    """Solve one prepared clip (:func:`~jaxanim.robots.prepare_retarget`); batch clips with ``jax.vmap``
+    over :func:`~jaxanim.robots.stack_problems` (``in_axes=(None, 0, None)``). Jit-compiled once per
+    robot, map and clip length; differentiable with respect to the problem's weights and scale and the
+    options' weights.
+    """
+    options = RetargetOptions() if options is None else options
+    q, cost, result, success = _solve(robot, problem, options)
+    fps = 1.0 / problem.frame_time
+    return RetargetResult(qpos=q, fps=fps, result=result, success=success, cost=cost,
+                          num_steps=jnp.asarray(options.iterations), diagnostics=diagnostics(robot, problem, q))

