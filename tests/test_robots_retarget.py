@@ -214,3 +214,20 @@ def test_bad_input_is_named(walk):
     with pytest.raises(jaxanim.JaxanimError, match="options.plant_weight"):
         robots.retarget(skel, motion, robot, robots.default_mapping_path(),
                         options=robots.RetargetOptions(plant_weight=-1.0))
+
+
+@pytest.mark.acceptance  # a third compile of the humanoid's solve (about 40 s): python -m pytest -m acceptance
+def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):
+    from jaxanim.app import main
+
+    out = tmp_path / "walk.npz"
+    assert main(["retarget", "--out", str(out), "--iterations", "30"]) == 0
+    text = capsys.readouterr().out
+    assert "foot slide" in text and "penetration" in text and "limit hits" in text and "matching error" in text
+    with np.load(out) as f:
+        _, motion, _, robot, batch = walk
+        assert f["qpos"].shape == (motion.num_frames, robot.nq)
+        assert {"fps", "joint_names", "body_names", "foot_slide", "penetration", "position_error"} <= set(f.files)
+        np.testing.assert_allclose(f["qpos"], np.asarray(batch[0].qpos), atol=1e-8)  # the same solve
+    assert main(["retarget", "--out", str(tmp_path / "x.txt")]) == 2
+    assert "--out" in capsys.readouterr().err

@@ -55,6 +55,7 @@ from ._track import add_track_parser
 from ._motion import add_motion_parsers
 from ._match import add_match_parser
 from ._render import add_render_parser
+from ._retarget import add_retarget_parser
 from ._view import add_view_parser
 from ._skin import add_skin_parser
 from ._common import (  # the 0.1 module held these: ``jaxanim.cli`` still offers them
@@ -332,6 +333,7 @@ def _build_parser() -> argparse.ArgumentParser:
     add_motion_parsers(sub, common, file_help)
     add_match_parser(sub, common)
     add_render_parser(sub, common)
+    add_retarget_parser(sub, common)
     add_view_parser(sub, common)
     add_skin_parser(sub, common)
 

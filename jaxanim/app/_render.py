@@ -21,6 +21,12 @@ through pyplot, and written by matplotlib's animation writers: Pillow for ``.gif
   grid, the file name as each panel's title and the time and frame number in its corner.
   ``--mesh`` adds the capsule skin of the skeleton (:mod:`jaxanim.skinning`: ``capsule_mesh``,
   ``heuristic_weights``, ``skin_motion`` with LBS), shaded by a fixed light.
+* **Retarget results.** A ``.npz`` from ``jaxanim retarget`` (:mod:`._retarget_clip`) is one panel in
+  the robot's frame (Z up, ground at z = 0, no FK): the robot's bodies as orange sticks beside its
+  source skeleton in blue, shifted along +Y just clear of it, a foot in stance marked green, a legend
+  naming both files, seen in 3/4 from the robot's front right (:func:`render_retarget`, which
+  ``jaxanim retarget --render`` calls too). ``--fps``, ``--frames``, ``--camera`` and ``--size`` work
+  as for clips; ``--compare`` and ``--mesh`` do not apply.
 * **GIF.** One palette for all frames, without dithering (what stands still keeps its pixels),
   and frame durations in GIF's centiseconds that add up to the clip's time (:func:`_gif_writer`).
 """
@@ -33,7 +39,7 @@ import math
 import os
 import pathlib
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -41,14 +47,24 @@ from .._errors import JaxanimError
 from ..skeleton._skeleton import Motion
 from ._common import _UI, _Clip, _clip_fk, _duration, _load, _ms, _num
 from ._plot import _AXIS_ORDER, _COLORS, _import_matplotlib, _side
+from ._retarget_clip import (
+    RetargetClip,
+    RetargetScene,
+    is_retarget_file,
+    load_retarget,
+    retarget_scene,
+)
 from ._simulate import _check_writable
 
-__all__ = ["RenderInfo", "add_render_parser", "render_clips"]
+__all__ = ["RenderInfo", "add_render_parser", "render_clips", "render_retarget"]
 
 _WRITERS = {".gif": "pillow", ".mp4": "ffmpeg"}
 _CAMERAS = ("follow", "fixed")
 _DPI = 100
 _VIEW = (12.0, -60.0)  # (elevation, azimuth) in degrees, as plot_pose's
+# a robot faces +X (Z up): a 3/4 view from its front right, so its source, beside it at +Y, stands on the right
+_RETARGET_VIEW = (12.0, -35.0)
+_ROBOT_COLOR, _SOURCE_COLOR, _CONTACT_COLOR = "tab:orange", "tab:blue", "tab:green"
 _LIGHT = np.array([-0.4, -0.6, 1.0]) / np.linalg.norm([-0.4, -0.6, 1.0])  # plot coordinates, vertical last
 _SKIN_RGB = np.array([0.55, 0.68, 0.85])
 # the collections start with a placeholder (matplotlib's add_collection3d cannot autoscale an empty one);
@@ -129,9 +145,9 @@ def _parse_frames(spec: str) -> tuple[int | None, int | None]:
     return a, b
 
 
-def _frame_range(frames: tuple[int | None, int | None] | None, clip: _Clip) -> tuple[int, int] | None:
+def _frame_range(frames: tuple[int | None, int | None] | None, clip: _Clip | RetargetClip) -> tuple[int, int] | None:
     """The selected ``[A, B)`` of ``clip``, checked, or ``None`` for all frames."""
-    n = clip.motion.num_frames
+    n = clip.num_frames if isinstance(clip, RetargetClip) else clip.motion.num_frames
     if n == 0:
         raise JaxanimError(f"{clip.label} has no frames")
     if frames is None:
@@ -208,52 +224,41 @@ def _nice_step(span: float) -> float:
     return min((s * e for s in (1.0, 2.0, 5.0, 10.0)), key=lambda s: abs(math.log(s / raw)))
 
 
-class _PanelArtist:
-    """The artists of one panel, made once; :meth:`update` moves them to output frame ``k``."""
+class _Stage:
+    """What every panel has, made once: the axes (hidden, equal scale, the up axis vertical), the
+    camera, the ground grid, the shadows and the time label.
 
-    def __init__(self, fig, ax, panel: _Panel, camera: str, size: int):
-        from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+    ``shown [frames, P, 3]`` is everything drawn at the frames shown (it sets the view's size),
+    ``track [frames, 2]`` the horizontal point the ``follow`` camera centres on at those frames,
+    ``ground`` the height of the grid and the shadows.
+    """
 
-        self.ax, self.p, self.camera = ax, panel, camera
-        shown = panel.points[np.unique(panel.index)]  # [frames, P, 3]: limits over what is drawn
-        extra = panel.vertices[np.unique(panel.index)] if panel.vertices is not None else shown[:, :0]
-        allpts = np.concatenate([shown, extra], axis=1)
-        self.ground = float(allpts[..., 2].min())
-        top = float(allpts[..., 2].max())
+    def __init__(self, ax, title: str, shown: np.ndarray, track: np.ndarray, ground: float, camera: str, size: int,
+                 view: tuple[float, float] = _VIEW):
+        from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+        self.ax, self.camera, self.ground = ax, camera, ground
+        low, top = min(ground, float(shown[..., 2].min())), float(shown[..., 2].max())
         if camera == "follow":
-            root = shown[:, :1, :2]
-            radius = float(np.linalg.norm(allpts[..., :2] - root, axis=-1).max())
-            self.half = 0.55 * max(top - self.ground, 2.0 * radius, 1e-9)
+            radius = float(np.linalg.norm(shown[..., :2] - track[:, None], axis=-1).max())
+            self.half = 0.55 * max(top - low, 2.0 * radius, 1e-9)
         else:
-            lo, hi = allpts.reshape(-1, 3).min(axis=0), allpts.reshape(-1, 3).max(axis=0)
+            lo, hi = shown.reshape(-1, 3).min(axis=0), shown.reshape(-1, 3).max(axis=0)
+            lo[2] = low
             self.half = 0.55 * max(float((hi - lo).max()), 1e-9)
             self.center = 0.5 * (lo + hi)
         self.step = _nice_step(2.0 * self.half)
-        self.zlim = (self.ground - 0.1 * self.half, self.ground + 1.9 * self.half)
+        self.zlim = (low - 0.1 * self.half, low + 1.9 * self.half)
 
         ax.set_axis_off()
         ax.computed_zorder = False  # the grid under the shadow under the skin under the bones
-        ax.view_init(elev=_VIEW[0], azim=_VIEW[1])
+        ax.view_init(elev=view[0], azim=view[1])
         ax.set_box_aspect((1.0, 1.0, 1.0), zoom=1.35)
-        ax.set_title(panel.title, fontsize=max(6.0, size / 36.0), pad=0)
+        ax.set_title(title, fontsize=max(6.0, size / 36.0), pad=0)
         self.grid = Line3DCollection(_ONE_SEGMENT, colors="0.82", linewidths=0.8, zorder=0)
         self.shadow = Line3DCollection(_ONE_SEGMENT, colors="0.72", linewidths=2.0, zorder=1)
         ax.add_collection3d(self.grid)
         ax.add_collection3d(self.shadow)
-        self.mesh = None
-        if panel.vertices is not None:
-            self.mesh = Poly3DCollection(_ONE_TRIANGLE, zorder=2, linewidths=0.0, alpha=0.55)
-            ax.add_collection3d(self.mesh)
-        self.sides = []
-        width = 2.5 if panel.vertices is None else 1.5
-        for side, color in _COLORS.items():
-            pairs = np.array([(a, b) for a, b, s in panel.bones if s == side], dtype=np.int64).reshape(-1, 2)
-            if len(pairs):
-                coll = Line3DCollection(_ONE_SEGMENT, colors=color, linewidths=width, zorder=3)
-                ax.add_collection3d(coll)
-                self.sides.append((coll, pairs))
-        self.pairs = np.array([(a, b) for a, b, _ in panel.bones], dtype=np.int64).reshape(-1, 2)
-        (self.joints,) = ax.plot([], [], [], "o", ms=max(1.5, size / 150.0), color="k", zorder=4, linestyle="")
         self.label = ax.text2D(0.02, 0.02, "", transform=ax.transAxes, fontsize=max(5.0, size / 45.0), color="0.3")
         if camera == "fixed":
             self._limits(self.center[:2])
@@ -269,17 +274,48 @@ class _PanelArtist:
         segs = [((x, c[1] - h, g), (x, c[1] + h, g)) for x in xs] + [((c[0] - h, y, g), (c[0] + h, y, g)) for y in ys]
         self.grid.set_segments(np.array(segs, dtype=np.float64).reshape(-1, 2, 3))
 
+    def _move(self, pts: np.ndarray, pairs: np.ndarray, centre: np.ndarray) -> None:
+        """The camera (``follow``) and the shadows of the segments ``pairs`` of ``pts [P, 3]``."""
+        if self.camera == "follow":
+            self._limits(centre)
+        flat = pts.copy()
+        flat[:, 2] = self.ground
+        self.shadow.set_segments(np.stack([flat[pairs[:, 0]], flat[pairs[:, 1]]], axis=1))
+
+
+class _PanelArtist(_Stage):
+    """The artists of one clip's panel; :meth:`update` moves them to output frame ``k``."""
+
+    def __init__(self, fig, ax, panel: _Panel, camera: str, size: int):
+        from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
+        self.p = panel
+        shown = panel.points[np.unique(panel.index)]  # [frames, P, 3]: limits over what is drawn
+        extra = panel.vertices[np.unique(panel.index)] if panel.vertices is not None else shown[:, :0]
+        allpts = np.concatenate([shown, extra], axis=1)
+        super().__init__(ax, panel.title, allpts, shown[:, 0, :2], float(allpts[..., 2].min()), camera, size)
+        self.mesh = None
+        if panel.vertices is not None:
+            self.mesh = Poly3DCollection(_ONE_TRIANGLE, zorder=2, linewidths=0.0, alpha=0.55)
+            ax.add_collection3d(self.mesh)
+        self.sides = []
+        width = 2.5 if panel.vertices is None else 1.5
+        for side, color in _COLORS.items():
+            pairs = np.array([(a, b) for a, b, s in panel.bones if s == side], dtype=np.int64).reshape(-1, 2)
+            if len(pairs):
+                coll = Line3DCollection(_ONE_SEGMENT, colors=color, linewidths=width, zorder=3)
+                ax.add_collection3d(coll)
+                self.sides.append((coll, pairs))
+        self.pairs = np.array([(a, b) for a, b, _ in panel.bones], dtype=np.int64).reshape(-1, 2)
+        (self.joints,) = ax.plot([], [], [], "o", ms=max(1.5, size / 150.0), color="k", zorder=4, linestyle="")
+
     def update(self, k: int, t: float) -> None:
         p = self.p
         f = int(p.index[k])
         pts = p.points[f]
-        if self.camera == "follow":
-            self._limits(pts[0, :2])
+        self._move(pts, self.pairs, pts[0, :2])
         for coll, pairs in self.sides:
             coll.set_segments(np.stack([pts[pairs[:, 0]], pts[pairs[:, 1]]], axis=1))
-        flat = pts.copy()
-        flat[:, 2] = self.ground
-        self.shadow.set_segments(np.stack([flat[self.pairs[:, 0]], flat[self.pairs[:, 1]]], axis=1))
         J = p.num_joints
         self.joints.set_data_3d(pts[:J, 0], pts[:J, 1], pts[:J, 2])
         if self.mesh is not None:
@@ -290,6 +326,42 @@ class _PanelArtist:
             self.mesh.set_verts(tris)
             self.mesh.set_facecolor(np.clip(shade[:, None] * _SKIN_RGB, 0.0, 1.0))
         self.label.set_text(f"t = {t:.2f} s   frame {f}/{len(p.points) - 1}")
+
+
+class _RetargetArtist(_Stage):
+    """A robot beside its source on one axes (Z up, ground at z = 0); :meth:`update` shows frame ``f``."""
+
+    def __init__(self, ax, title: str, scene: RetargetScene, shown: np.ndarray, camera: str, size: int):
+        from matplotlib.lines import Line2D
+        from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+        self.s = scene
+        self.pairs = np.concatenate([scene.sticks, scene.bones])
+        super().__init__(ax, title, scene.points[shown], scene.track[shown], 0.0, camera, size, _RETARGET_VIEW)
+        self.sticks = Line3DCollection(_ONE_SEGMENT, colors=_ROBOT_COLOR, linewidths=3.5, zorder=3)
+        self.bones = Line3DCollection(_ONE_SEGMENT, colors=_SOURCE_COLOR, linewidths=2.0, zorder=3)
+        ax.add_collection3d(self.sticks)
+        ax.add_collection3d(self.bones)
+        ms = max(1.5, size / 150.0)
+        (self.dots,) = ax.plot([], [], [], "o", ms=ms, color="k", zorder=4, linestyle="")
+        (self.stance,) = ax.plot([], [], [], "o", ms=2.5 * ms, color=_CONTACT_COLOR, zorder=5, linestyle="")
+        handles = [Line2D([], [], color=_ROBOT_COLOR, lw=3.5, label=scene.robot_label),
+                   Line2D([], [], color=_SOURCE_COLOR, lw=2.0, label=scene.source_label)]
+        if (scene.feet >= 0).any():
+            handles.append(Line2D([], [], color=_CONTACT_COLOR, marker="o", ms=2.5 * ms, ls="", label="foot in stance"))
+        ax.legend(handles=handles, loc="upper left", fontsize=max(4.5, size / 55.0), frameon=False,
+                  borderaxespad=0.2, handlelength=1.5)
+
+    def update(self, f: int, t: float) -> None:
+        s = self.s
+        pts = s.points[f]
+        self._move(pts, self.pairs, s.track[f])
+        self.sticks.set_segments(np.stack([pts[s.sticks[:, 0]], pts[s.sticks[:, 1]]], axis=1))
+        self.bones.set_segments(np.stack([pts[s.bones[:, 0]], pts[s.bones[:, 1]]], axis=1))
+        self.dots.set_data_3d(pts[:, 0], pts[:, 1], pts[:, 2])
+        down = s.feet[(s.feet >= 0) & s.contacts[f]] if s.contacts is not None else s.feet[:0]
+        self.stance.set_data_3d(pts[down, 0], pts[down, 1], pts[down, 2])
+        self.label.set_text(f"t = {t:.2f} s   frame {f}/{len(s.points) - 1}")
 
 
 def _gif_writer(animation):
@@ -420,30 +492,113 @@ def render_clips(
             skin_seconds += time.perf_counter() - t0
         panels.append(panel)
 
-    from matplotlib import animation
+    size += size % 2  # even pixel sizes: h264 needs them
+    width, height = size * len(panels), size
+    fig = _figure(width, height)
+    artists = [_PanelArtist(fig, fig.add_subplot(1, len(panels), i + 1, projection="3d"), p, camera, size)
+               for i, p in enumerate(panels)]
+
+    def draw(k: int, t: float) -> None:
+        for a in artists:
+            a.update(k, t)
+
+    ui.progress(f"drawing {len(times)} frames at {_num(fps)} fps ({width}x{height} px) to {out}")
+    draw_seconds = _write(fig, out, writer_name, fps, times, draw)
+    return RenderInfo(pathlib.Path(out), len(times), fps, width, height, fk_seconds, skin_seconds, draw_seconds)
+
+
+def _figure(width: int, height: int):
+    """A matplotlib figure of ``width x height`` pixels on an Agg canvas (no pyplot)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    size += size % 2  # even pixel sizes: h264 needs them
-    width, height = size * len(panels), size
     fig = Figure(figsize=(width / _DPI, height / _DPI), dpi=_DPI)
     FigureCanvasAgg(fig)
     fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.94, wspace=0.0)
-    artists = [_PanelArtist(fig, fig.add_subplot(1, len(panels), i + 1, projection="3d"), p, camera, size)
-               for i, p in enumerate(panels)]
-    if writer_name == "ffmpeg":
-        writer = animation.FFMpegWriter(fps=fps, codec="h264")
-    else:
-        writer = _gif_writer(animation)(fps=fps)
-    ui.progress(f"drawing {len(times)} frames at {_num(fps)} fps ({width}x{height} px) to {out}")
+    return fig
+
+
+def _write(fig, out, writer_name: str, fps: float, times: np.ndarray, draw) -> float:
+    """Grab ``draw(k, t)`` of every output time into ``out``; returns the seconds it took."""
+    from matplotlib import animation
+
+    writer = animation.FFMpegWriter(fps=fps, codec="h264") if writer_name == "ffmpeg" else _gif_writer(animation)(fps=fps)
     t0 = time.perf_counter()
     with writer.saving(fig, os.fspath(out), dpi=_DPI):
         for k, t in enumerate(times):
-            for a in artists:
-                a.update(k, float(t))
+            draw(k, float(t))
             writer.grab_frame()
-    draw_seconds = time.perf_counter() - t0
-    return RenderInfo(pathlib.Path(out), len(times), fps, width, height, fk_seconds, skin_seconds, draw_seconds)
+    return time.perf_counter() - t0
+
+
+def render_retarget(
+    npz_path_or_mapping,
+    out: str | os.PathLike,
+    *,
+    fps: float | None = None,
+    frames: tuple[int | None, int | None] | None = None,
+    camera: str = "follow",
+    size: int = 360,
+    offset: float | None = None,
+    ui: _UI | None = None,
+) -> RenderInfo:
+    """Animate a retarget result, the robot's bodies as sticks beside its source skeleton, into a GIF or MP4.
+
+    One panel, the robot's frame (Z up, ground at z = 0): the robot in orange, the source in blue
+    shifted along +Y (:func:`._retarget_clip.source_shift`), a foot that stands (``contacts``) marked
+    green, a legend naming the robot and the source files, the result's file name as the title.
+
+    Args:
+        npz_path_or_mapping: the .npz ``jaxanim retarget`` wrote, a dict with the same keys
+            (:mod:`._retarget_clip` has the layout), or a loaded :class:`._retarget_clip.RetargetClip`.
+        out: the file to write; ``.gif`` (Pillow) or ``.mp4`` (ffmpeg).
+        fps: output frames per second (default: the result's ``fps``); frames are picked by time.
+        frames: ``(A, B)`` selects frames ``A`` to ``B - 1`` (``None`` ends: the start, the end).
+        camera: ``"follow"`` (centred between the two roots) or ``"fixed"`` (the whole clip's box).
+        size: the output's width and height, pixels (made even).
+        offset: the source's shift along +Y, m (default: just clear of the robot).
+        ui: where progress goes (default: quiet).
+
+    Returns:
+        A :class:`RenderInfo` (``fk_seconds`` holds the time spent reading the result).
+
+    Raises:
+        JaxanimError: a bad result (the message names the file and the key), an unknown extension,
+            no ffmpeg for MP4, ``fps <= 0``, frames out of range, an unknown camera, no matplotlib.
+        OSError: the file cannot be written.
+    """
+    ui = ui or _UI(quiet=True)
+    writer_name = _writer_name(out)
+    _check_fps(fps)
+    if camera not in _CAMERAS:
+        raise JaxanimError(f"--camera {camera}: expected one of {', '.join(_CAMERAS)}")
+    if not (isinstance(size, int) and size >= 32):
+        raise JaxanimError(f"--size {size}: expected at least 32 pixels")
+    t0 = time.perf_counter()
+    if isinstance(npz_path_or_mapping, RetargetClip):
+        clip = npz_path_or_mapping
+    else:
+        if not isinstance(npz_path_or_mapping, Mapping):
+            ui.progress(f"reading {npz_path_or_mapping}")
+        clip = load_retarget(npz_path_or_mapping)
+    read_seconds = time.perf_counter() - t0
+    scene = retarget_scene(clip, offset)
+    _check_writer(writer_name, out)
+    _check_writable("--out", os.fspath(out))
+    a, b = _frame_range(frames, clip) or (0, clip.num_frames)
+    fps = clip.fps if fps is None else float(fps)
+    ft = clip.frame_time
+    times = a * ft + np.arange(math.floor((b - 1 - a) * ft * fps + 1e-6) + 1) / fps
+    index = np.clip(np.rint(times / ft).astype(np.int64), 0, clip.num_frames - 1)
+
+    size += size % 2
+    fig = _figure(size, size)
+    artist = _RetargetArtist(fig.add_subplot(1, 1, 1, projection="3d"), clip.name, scene, np.unique(index), camera,
+                             size)
+    ui.progress(f"drawing {len(times)} frames of {clip.robot_name} beside {clip.source_name} at {_num(fps)} fps "
+                f"({size}x{size} px) to {out}")
+    draw_seconds = _write(fig, out, writer_name, fps, times, lambda k, t: artist.update(int(index[k]), t))
+    return RenderInfo(pathlib.Path(out), len(times), fps, size, size, read_seconds, 0.0, draw_seconds)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -457,6 +612,11 @@ def _cmd_render(args: argparse.Namespace, ui: _UI) -> int:
         _writer_name(args.out)
     _check_fps(args.fps)
     frames = _parse_frames(args.frames) if args.frames is not None else None
+    if is_retarget_file(args.compare):
+        raise JaxanimError(f"--compare {args.compare}: a retarget result already holds the robot and its source; "
+                           f"render it on its own (jaxanim render {args.compare})")
+    if is_retarget_file(args.file):
+        return _cmd_render_retarget(args, frames, ui)
     clips = [_load(args.file, ui, args.dtype)]
     if args.compare is not None:
         clips.append(_load(args.compare, ui, args.dtype))
@@ -471,6 +631,25 @@ def _cmd_render(args: argparse.Namespace, ui: _UI) -> int:
     return 0
 
 
+def _cmd_render_retarget(args: argparse.Namespace, frames, ui: _UI) -> int:
+    """``jaxanim render RESULT.npz``: the robot beside its source (:func:`render_retarget`)."""
+    for flag, given in (("--compare", args.compare is not None), ("--mesh", args.mesh)):
+        if given:
+            raise JaxanimError(f"{flag}: not with a retarget result ({args.file}), which is drawn as the robot's "
+                               "sticks beside its source's skeleton")
+    ui.progress(f"reading {args.file}")
+    t0 = time.perf_counter()
+    clip = load_retarget(args.file)
+    seconds = time.perf_counter() - t0
+    out = args.out or f"{clip.stem}.gif"
+    info = render_retarget(clip, out, fps=args.fps, frames=frames, camera=args.camera, size=args.size, ui=ui)
+    mb = pathlib.Path(out).stat().st_size / 1e6
+    ui.result(f"wrote {out}: {info.frames} frames at {_num(info.fps)} fps ({_num(info.frames / info.fps)} s), "
+              f"{info.width}x{info.height} px, {mb:.2f} MB; {clip.robot_name} beside {clip.source_name}; "
+              f"reading {_ms(seconds)}, drawing {_duration(info.draw_seconds)}")
+    return 0
+
+
 def add_render_parser(sub, common) -> None:
     p = sub.add_parser("render", parents=[common], help="animate a clip as a 3-D stick figure (GIF or MP4)",
                        description="Animate a clip as a 3-D stick figure with matplotlib (jaxanim[plot]): Pillow "
@@ -479,8 +658,11 @@ def add_render_parser(sub, common) -> None:
                                    "and its simulation), aligned by time, the shorter held at its last frame. The "
                                    "camera follows the root (--camera follow, the default: a fixed-size view centred "
                                    "on the root, the ground grid sliding past) or is fixed on the bounding box of the "
-                                   "whole clip (--camera fixed).")
-    p.add_argument("file", nargs="?", metavar="FILE.bvh", help="a BVH file (default: the shipped walk clip)")
+                                   "whole clip (--camera fixed). A retarget result (RESULT.npz, from jaxanim "
+                                   "retarget) is drawn as the robot's bodies as sticks beside its source skeleton, "
+                                   "in the robot's frame (Z up).")
+    p.add_argument("file", nargs="?", metavar="FILE.bvh|RESULT.npz",
+                   help="a BVH file, or a retarget result .npz (default: the shipped walk clip)")
     p.add_argument("--compare", "-c", metavar="OTHER.bvh", help="a second clip, drawn beside the first")
     p.add_argument("--mesh", action="store_true", help="also draw the skinned capsule mesh (jaxanim.skinning, LBS)")
     p.add_argument("--out", "-o", default=None, metavar="OUT.gif|OUT.mp4",

@@ -11,8 +11,14 @@ The scene, Y up (the BVH convention), in file units:
   magenta, :data:`BONE_RGB`), its joints as dark points, its file name as a label above the
   head, and with ``--mesh`` its skinned capsule mesh (:mod:`jaxanim.skinning`: ``capsule_mesh``,
   ``heuristic_weights``, ``skin_motion``, LBS) under the bones;
-* several clips stand side by side along X, each shifted by a constant so the clips' X ranges over
-  all their frames do not overlap (a gap of a third of the tallest figure between them);
+* a retarget result (``RESULT.npz`` from ``jaxanim retarget``, :mod:`._retarget_clip`) is two
+  figures: the robot's bodies as orange sticks (from each body to its parent, not the world) and
+  its source skeleton in blue beside it, shifted along the robot's +Y just clear of it; the
+  robot's frame (Z up, metres) is turned into the scene's Y up by the rotation
+  ``(x, y, z) -> (x, z, -y)``, so the robot still faces +X and its source stands at -Z;
+* several clips (a retarget result counts as one) stand side by side along X, each shifted by a
+  constant so the clips' X ranges over all their frames do not overlap (a gap of a third of the
+  tallest figure between them);
 * a ground grid at the lowest point of all clips.
 
 The timeline runs at the first clip's frame rate over the longest clip; each clip shows its frame
@@ -39,6 +45,12 @@ from .._errors import JaxanimError
 from ._common import _UI, _Clip, _clip_fk, _load, _num
 from ._plot import _side
 from ._render import _nice_step
+from ._retarget_clip import (
+    RetargetClip,
+    is_retarget_file,
+    load_retarget,
+    retarget_scene,
+)
 
 __all__ = ["BONE_RGB", "Viewer", "add_view_parser", "build_viewer"]
 
@@ -47,6 +59,7 @@ __all__ = ["BONE_RGB", "Viewer", "add_view_parser", "build_viewer"]
 BONE_RGB = {"left": (30, 100, 255), "right": (235, 30, 30), "center": (220, 0, 220)}
 _JOINT_RGB = (30, 30, 30)
 _MESH_RGB = (150, 180, 220)
+_ROBOT_RGB, _SOURCE_RGB = (255, 127, 14), (31, 119, 180)  # matplotlib's tab:orange and tab:blue, as render's
 
 
 @dataclasses.dataclass
@@ -56,6 +69,8 @@ class _ViewClip:
     pairs: np.ndarray  # [bones, 2] point indices
     num_joints: int
     index: np.ndarray  # [timeline] the frame shown at each step of the timeline
+    colors: np.ndarray  # [bones, 2, 3] uint8
+    group: int  # the input it comes from: a group stands together (a robot and its source)
     bones: Any = None  # viser handles
     joints: Any = None
     label: Any = None
@@ -137,8 +152,31 @@ def _skinned(clip: _Clip, ui: _UI) -> tuple[np.ndarray, np.ndarray]:
     return v, np.asarray(mesh.faces, np.int64)
 
 
+def _timing(c: _Clip | RetargetClip) -> tuple[int, float, float]:
+    """(frames, frame time, fps) of a clip or a retarget result."""
+    if isinstance(c, RetargetClip):
+        return c.num_frames, c.frame_time, c.fps
+    return c.motion.num_frames, float(c.motion.frame_time), float(c.motion.fps)
+
+
+def _bone_colors(rgb: Sequence[tuple[int, int, int]]) -> np.ndarray:
+    return np.array(rgb, np.uint8).reshape(-1, 1, 3).repeat(2, axis=1)
+
+
+def _retarget_views(c: RetargetClip, index: np.ndarray, group: int) -> list[_ViewClip]:
+    """The robot and its source beside it, turned from Z up to the scene's Y up."""
+    scene = retarget_scene(c)
+    pts = scene.points[..., [0, 2, 1]] * np.array([1.0, 1.0, -1.0])  # (x, y, z) -> (x, z, -y)
+    R = scene.num_robot
+    robot = _ViewClip(scene.robot_label, pts[:, :R], scene.sticks, R, index,
+                      _bone_colors([_ROBOT_RGB] * len(scene.sticks)), group)
+    source = _ViewClip(scene.source_label, pts[:, R:], scene.bones - R, pts.shape[1] - R, index,
+                       _bone_colors([_SOURCE_RGB] * len(scene.bones)), group)
+    return [robot, source]
+
+
 def build_viewer(
-    clips: Sequence[_Clip],
+    clips: Sequence[_Clip | RetargetClip],
     *,
     port: int = 8080,
     host: str = "127.0.0.1",
@@ -149,10 +187,11 @@ def build_viewer(
     """Compute FK of the clips, start a viser server showing them at step 0, and return at once.
 
     Args:
-        clips: the loaded clips (:func:`._common._load`), placed left to right along X.
+        clips: the loaded clips (:func:`._common._load`) or retarget results
+            (:func:`._retarget_clip.load_retarget`), placed left to right along X.
         port: the port to listen on (``0``: any free one; viser takes the next free one if taken).
         host: the address to listen on (``"0.0.0.0"`` for every interface).
-        mesh: also show the skinned capsule mesh (:mod:`jaxanim.skinning`).
+        mesh: also show the skinned capsule mesh (:mod:`jaxanim.skinning`) of the BVH clips.
         playing: the play checkbox's initial state.
         ui: where progress goes (default: quiet).
 
@@ -168,14 +207,19 @@ def build_viewer(
     if not clips:
         raise JaxanimError("no clip to view")
     for c in clips:
-        if c.motion.num_frames == 0:
+        if _timing(c)[0] == 0:
             raise JaxanimError(f"{c.label} has no frames")
-    ft0 = float(clips[0].motion.frame_time)
-    duration = max((c.motion.num_frames - 1) * float(c.motion.frame_time) for c in clips)
+    ft0 = _timing(clips[0])[1]
+    duration = max((n - 1) * ft for n, ft, _ in map(_timing, clips))
     times = np.arange(math.floor(duration / ft0 + 1e-6) + 1) * ft0
 
     views: list[_ViewClip] = []
-    for c in clips:
+    for i, c in enumerate(clips):
+        n, ft, _ = _timing(c)
+        index = np.clip(np.rint(times / ft).astype(np.int64), 0, n - 1)
+        if isinstance(c, RetargetClip):
+            views += _retarget_views(c, index, i)
+            continue
         sk = c.skeleton
         fk = _clip_fk(c, ui).result
         pts = np.concatenate([np.asarray(fk.positions, np.float64), np.asarray(fk.end_site_positions, np.float64)],
@@ -185,8 +229,9 @@ def build_viewer(
         J = sk.num_joints
         bones = [(par, j) for j, par in enumerate(sk.parents) if par >= 0]
         bones += [(par, J + k) for k, par in enumerate(sk.end_site_parents)]
-        index = np.clip(np.rint(times / float(c.motion.frame_time)).astype(np.int64), 0, c.motion.num_frames - 1)
-        v = _ViewClip(c.path.name, pts, np.array(bones, np.int64).reshape(-1, 2), J, index)
+        sides = [_side(name) for name in sk.names]
+        v = _ViewClip(c.path.name, pts, np.array(bones, np.int64).reshape(-1, 2), J, index,
+                      _bone_colors([BONE_RGB[sides[a]] for a, _ in bones]), i)
         if mesh:
             v.vertices, faces = _skinned(c, ui)
             v.mesh = faces  # replaced by the handle below
@@ -197,14 +242,20 @@ def build_viewer(
         allpts = v.points if v.vertices is None else np.concatenate([v.points, v.vertices], axis=1)
         return np.stack([allpts.reshape(-1, 3).min(axis=0), allpts.reshape(-1, 3).max(axis=0)])
 
-    boxes = [extent(v) for v in views]
+    groups = sorted({v.group for v in views})
+    boxes = []
+    for g in groups:
+        b = np.stack([extent(v) for v in views if v.group == g])
+        boxes.append(np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)]))
     height = max(float(b[1, 1] - b[0, 1]) for b in boxes) or 1.0
     right = None
-    for v, b in zip(views, boxes):
+    for g, b in zip(groups, boxes):
         shift = 0.0 if right is None else right + height / 3.0 - float(b[0, 0])
-        v.points = v.points + np.array([shift, 0.0, 0.0])
-        if v.vertices is not None:
-            v.vertices = v.vertices + np.array([shift, 0.0, 0.0])
+        for v in views:
+            if v.group == g:
+                v.points = v.points + np.array([shift, 0.0, 0.0])
+                if v.vertices is not None:
+                    v.vertices = v.vertices + np.array([shift, 0.0, 0.0])
         b += np.array([shift, 0.0, 0.0])
         right = float(b[1, 0])
     for v in views:  # the name above the root, a little higher than the highest joint
@@ -227,15 +278,13 @@ def build_viewer(
                    position=(float(center[0]), float(lo[1]), float(center[2])))
     thickness, point_size = 0.025 * height, 0.03 * height
     for i, v in enumerate(views):
-        sides = [_side(n) for n in clips[i].skeleton.names]
-        colors = np.array([BONE_RGB[sides[a]] for a, _ in v.pairs], np.uint8).reshape(-1, 1, 3).repeat(2, axis=1)
         pts = v.points[0]
         if v.vertices is not None:
             v.mesh = scene.add_mesh_simple(f"/clip{i}/mesh", v.vertices[0].astype(np.float32), v.mesh,
                                            color=_MESH_RGB, opacity=0.6, side="double")
         v.bones = scene.add_line_segments(
             f"/clip{i}/bones", np.stack([pts[v.pairs[:, 0]], pts[v.pairs[:, 1]]], axis=1).astype(np.float32),
-            colors, thickness=thickness)
+            v.colors, thickness=thickness)
         v.joints = scene.add_point_cloud(f"/clip{i}/joints", pts[: v.num_joints].astype(np.float32), _JOINT_RGB,
                                          point_size=point_size, point_shape="circle", precision="float32",
                                          point_shading="flat")
@@ -251,7 +300,7 @@ def build_viewer(
     server.initial_camera.up = (0.0, 1.0, 0.0)
 
     gui = server.gui
-    fps0 = float(clips[0].motion.fps)
+    fps0 = _timing(clips[0])[2]
     frame = gui.add_slider("frame", min=0, max=max(len(times) - 1, 1), step=1, initial_value=0,
                            disabled=len(times) < 2)
     play = gui.add_checkbox("play", initial_value=playing)
@@ -271,7 +320,7 @@ def _cmd_view(args: argparse.Namespace, ui: _UI) -> int:
     if not 0 <= args.port <= 65535:
         raise JaxanimError(f"--port {args.port}: expected 0 to 65535")
     _import_viser()
-    clips = [_load(f, ui, args.dtype) for f in (args.files or [None])]
+    clips = [load_retarget(f) if is_retarget_file(f) else _load(f, ui, args.dtype) for f in (args.files or [None])]
     viewer = build_viewer(clips, port=args.port, host=args.host, mesh=args.mesh, ui=ui)
     ui.result(f"viewing {', '.join(c.label for c in clips)} at {viewer.url} (Ctrl-C stops)")
     try:
@@ -288,8 +337,10 @@ def add_view_parser(sub, common) -> None:
                        description="Serve an interactive 3-D view of one or more clips (jaxanim[view], viser) and "
                                    "print its address: the skeletons side by side, a ground grid, a timeline with a "
                                    "frame slider, play/pause and the playback rate; --mesh adds the skinned capsule "
-                                   "mesh. Runs until Ctrl-C.")
-    p.add_argument("files", nargs="*", metavar="FILE.bvh", help="BVH files (default: the shipped walk clip)")
+                                   "mesh. A retarget result (RESULT.npz, from jaxanim retarget) shows the robot's "
+                                   "sticks beside its source skeleton. Runs until Ctrl-C.")
+    p.add_argument("files", nargs="*", metavar="FILE.bvh|RESULT.npz",
+                   help="BVH files or retarget results (default: the shipped walk clip)")
     p.add_argument("--port", "-p", type=int, default=8080, metavar="P",
                    help="port (default 8080; the next free one if taken; 0: any free one)")
     p.add_argument("--host", default="127.0.0.1", metavar="ADDR",

@@ -1,0 +1,110 @@
+"""``jaxanim retarget SOURCE.bvh --robot ROBOT.xml|ROBOT.urdf --map MAP.json --out OUT.npz`` (issue 30)."""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import time
+
+import jax
+import numpy as np
+
+from .._errors import JaxanimError
+from ._common import _UI, _as_dtype, _duration
+
+#: The clip length above which the command reports the solve's stages as it goes.
+_LONG = 300
+
+
+def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
+    from .. import robots  # noqa: PLC0415 (mujoco is an optional extra)
+    from ..skeleton import read_bvh  # noqa: PLC0415
+    from ..kinematics import forward_kinematics  # noqa: PLC0415
+
+    out = pathlib.Path(args.out)
+    if out.suffix != ".npz":
+        raise JaxanimError(f"--out {args.out}: expected a .npz file")
+    if args.render is not None and pathlib.Path(args.render).suffix not in (".gif", ".mp4"):
+        raise JaxanimError(f"--render {args.render}: expected a .gif or .mp4 file")
+    dtype = "float32" if args.float32 else "float64"
+    robot_path = args.robot or robots.default_robot_path()
+    map_path = args.map or robots.default_mapping_path()
+    source = args.source
+    if source is None:
+        from ..skeleton import default_clip_path  # noqa: PLC0415
+        source = default_clip_path()
+    skeleton, motion = _as_dtype(read_bvh(source), dtype)
+    robot = robots.load_robot(robot_path, dtype=dtype)
+    unbounded = [n for n, t, lim in zip(robot.jnt_names, robot.jnt_types, robot.jnt_limited)
+                 if t in ("hinge", "slide") and not lim]
+    if unbounded:
+        ui.warning(f"{len(unbounded)} joint(s) without a range, treated as unbounded: {unbounded}")
+    start = time.perf_counter()
+    problem = robots.prepare_retarget(skeleton, motion, robot, map_path)
+    T = motion.num_frames
+    if T >= _LONG:
+        ui.progress(f"{source}: {T} frames prepared (contacts, anchors) in {_duration(time.perf_counter() - start)}; "
+                    f"solving the whole clip (compiling first)")
+    options = robots.RetargetOptions(iterations=args.iterations)
+    res = robots.solve_retarget(robot, problem, options)
+    qpos = np.asarray(jax.block_until_ready(res.qpos))
+    seconds = time.perf_counter() - start
+    if not np.all(np.isfinite(qpos)):
+        raise JaxanimError(f"the solve gave non-finite values ({res.result}); nothing written")
+    s = robots.summary(res.diagnostics, position_weight=problem.position_weight)
+    fk = jax.vmap(lambda q: robots.forward_kinematics(robot, q).xpos)(res.qpos)
+    src = jax.vmap(lambda r, t: forward_kinematics(skeleton, r, t).positions)(motion.rotations, motion.translations)
+    mapping = robots.load_mapping(map_path)
+    axes = np.asarray(robots.calibrate(mapping, skeleton, robot).axes, np.float64)
+    src_robot = np.asarray(src, np.float64) @ axes.T  # the targets' transform (prepare_retarget), every joint
+    feet_src = [skeleton.names.index(n) for n, foot in zip(mapping.sources, mapping.feet) if foot]
+    src_robot[..., 2] -= src_robot[:, feet_src, 2].min()
+    src_robot = float(problem.scale) * src_robot + np.array([0.0, 0.0, float(problem.lift)])
+    d = res.diagnostics
+    arrays = {
+        "qpos": qpos, "fps": np.asarray(float(res.fps)), "joint_names": np.asarray(robot.jnt_names),
+        "body_names": np.asarray(robot.body_names), "body_parents": np.asarray(robot.body_parents),
+        "body_positions": np.asarray(fk), "source_positions": src_robot, "source_names": np.asarray(skeleton.names),
+        "source_parents": np.asarray(skeleton.parents), "feet": np.asarray([problem.names[k] for k in problem.feet]),
+        "targets": np.asarray(problem.names), "contacts": np.asarray(d.contacts),
+        "position_error": np.asarray(d.position_error), "orientation_error": np.asarray(d.orientation_error),
+        "foot_slide": np.asarray(d.foot_slide), "foot_height": np.asarray(d.foot_height),
+        "penetration": np.asarray(d.penetration), "range_violation": np.asarray(d.range_violation),
+        "limit_hits": np.asarray(d.limit_hits), "joint_speed": np.asarray(d.joint_speed),
+        "jitter": np.asarray(d.jitter), "status": np.asarray(str(res.result) if not bool(res.success) else "successful"),
+        "success": np.asarray(bool(res.success)), "robot": np.asarray(str(robot_path)),
+        "source": np.asarray(str(source)), "map": np.asarray(str(map_path)),
+    }
+    bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
+    if bad:
+        raise JaxanimError(f"non-finite values in {bad}; nothing written")
+    np.savez(out, **arrays)
+    ui.result(f"wrote {out}: {T} frames of {robot.name} ({robot.nq} qpos) at {float(res.fps):g} fps in "
+              f"{_duration(seconds)} (compile included); status: "
+              f"{'successful' if bool(res.success) else res.result}")
+    ui.result(f"  stance foot slide (median) {1e3 * s['foot_slide']:.2f} mm/s, penetration {1e3 * s['penetration']:.2f} mm, "
+              f"lowest foot point {1e3 * s['lowest_foot']:.2f} mm")
+    ui.result(f"  joint-range violation {s['range_violation']:.2g}, limit hits {s['limit_hits']} (frames x joints), "
+              f"matching error {1e3 * s['matching_error']:.1f} mm, jitter {s['jitter']:.2f} rad/s^2")
+    if args.render is not None:
+        from ._render import render_retarget  # noqa: PLC0415 (matplotlib is an optional extra)
+        render_retarget(out, args.render, ui=ui)
+        ui.result(f"wrote {args.render}")
+    return 0 if bool(res.success) else 1
+
+
+def add_retarget_parser(sub, common) -> None:
+    p = sub.add_parser("retarget", parents=[common], help="retarget a BVH clip onto a robot (MJCF or URDF), feet planted",
+                       description="Retarget a BVH clip onto a robot (jaxanim.robots.retarget, needs jaxanim[robots]): "
+                                   "one least-squares problem over the whole clip, joint ranges as hard bounds, the "
+                                   "feet planted in the source's stance phases. Writes qpos [T, nq], fps, joint and "
+                                   "body names and the per-frame diagnostics to OUT.npz, and prints the foot slide, "
+                                   "penetration, limit hits and matching error. Defaults: the shipped walk, humanoid "
+                                   "and map.")
+    p.add_argument("source", nargs="?", metavar="SOURCE.bvh", help="the clip (default: the shipped walk)")
+    p.add_argument("--robot", metavar="ROBOT.xml|ROBOT.urdf", help="the robot (default: the shipped humanoid)")
+    p.add_argument("--map", metavar="MAP.json", help="the retargeting map (default: the shipped walk's)")
+    p.add_argument("--out", "-o", default="retarget.npz", metavar="OUT.npz", help="output (default retarget.npz)")
+    p.add_argument("--render", metavar="OUT.gif", help="also draw the robot beside its source (GIF or MP4)")
+    p.add_argument("--iterations", type=int, default=30, help="Levenberg-Marquardt iterations (default 30)")
+    p.set_defaults(func=_cmd_retarget)
