@@ -15,12 +15,12 @@ import pytest
 
 pytest.importorskip("PIL", reason="rendering needs Pillow (it comes with matplotlib: jaxanim[plot])")
 pytest.importorskip("matplotlib", reason="rendering needs matplotlib (jaxanim[plot])")
-from PIL import Image, ImageSequence
 
-from jaxanim import cli
 from jaxanim._errors import JaxanimError
 from jaxanim.app._render import render_retarget
 from jaxanim.app._retarget_clip import load_retarget, retarget_scene, source_shift
+
+from .test_render import _frames, _run
 
 _SIZE = 100  # pixels
 _T = 10  # frames
@@ -80,18 +80,6 @@ def _save(path: pathlib.Path, arrays: dict) -> pathlib.Path:
 @pytest.fixture(scope="module")
 def result_npz(tmp_path_factory) -> pathlib.Path:
     return _save(tmp_path_factory.mktemp("retarget") / "walk_chain.npz", _result())
-
-
-def _run(capsys, *argv) -> tuple[int, str, str]:
-    code = cli.main(["--no-compile-cache", *(str(a) for a in argv)])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def _frames(path: pathlib.Path) -> list[np.ndarray]:
-    with Image.open(path) as im:
-        assert im.format == "GIF", f"{path}: not a GIF ({im.format})"
-        return [np.asarray(f.convert("RGB"), dtype=np.int64) for f in ImageSequence.Iterator(im)]
 
 
 def _mask(img: np.ndarray, rgb) -> np.ndarray:

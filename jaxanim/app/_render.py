@@ -133,6 +133,17 @@ def _check_fps(fps: float | None) -> None:
         raise JaxanimError(f"--fps {fps:g}: expected a positive number of frames per second")
 
 
+def _check_output(out, fps, camera: str, size) -> str:
+    """The checks every render makes before drawing anything; returns the writer's name."""
+    writer_name = _writer_name(out)
+    _check_fps(fps)
+    if camera not in _CAMERAS:
+        raise JaxanimError(f"--camera {camera}: expected one of {', '.join(_CAMERAS)}")
+    if not (isinstance(size, int) and size >= 32):
+        raise JaxanimError(f"--size {size}: expected at least 32 pixels")
+    return writer_name
+
+
 def _parse_frames(spec: str) -> tuple[int | None, int | None]:
     """``"A:B"``, ``"A:"``, ``":B"`` -> ``(A, B)`` (``None`` where omitted)."""
     parts = spec.split(":")
@@ -465,14 +476,9 @@ def render_clips(
         OSError: the file cannot be written.
     """
     ui = ui or _UI(quiet=True)
-    writer_name = _writer_name(out)
-    _check_fps(fps)
-    if camera not in _CAMERAS:
-        raise JaxanimError(f"--camera {camera}: expected one of {', '.join(_CAMERAS)}")
     if not clips:
         raise JaxanimError("no clip to render")
-    if not (isinstance(size, int) and size >= 32):
-        raise JaxanimError(f"--size {size}: expected at least 32 pixels")
+    writer_name = _check_output(out, fps, camera, size)
     _check_writer(writer_name, out)
     _check_writable("--out", os.fspath(out))
     selected = _frame_range(frames, clips[0])
@@ -568,12 +574,7 @@ def render_retarget(
         OSError: the file cannot be written.
     """
     ui = ui or _UI(quiet=True)
-    writer_name = _writer_name(out)
-    _check_fps(fps)
-    if camera not in _CAMERAS:
-        raise JaxanimError(f"--camera {camera}: expected one of {', '.join(_CAMERAS)}")
-    if not (isinstance(size, int) and size >= 32):
-        raise JaxanimError(f"--size {size}: expected at least 32 pixels")
+    writer_name = _check_output(out, fps, camera, size)
     t0 = time.perf_counter()
     if isinstance(npz_path_or_mapping, RetargetClip):
         clip = npz_path_or_mapping

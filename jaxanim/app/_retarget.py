@@ -54,24 +54,15 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     s = robots.summary(res.diagnostics, position_weight=problem.position_weight)
     fk = jax.vmap(lambda q: robots.forward_kinematics(robot, q).xpos)(res.qpos)
     src = jax.vmap(lambda r, t: forward_kinematics(skeleton, r, t).positions)(motion.rotations, motion.translations)
-    mapping = robots.load_mapping(map_path)
-    axes = np.asarray(robots.calibrate(mapping, skeleton, robot).axes, np.float64)
-    src_robot = np.asarray(src, np.float64) @ axes.T  # the targets' transform (prepare_retarget), every joint
-    feet_src = [skeleton.names.index(n) for n, foot in zip(mapping.sources, mapping.feet) if foot]
-    src_robot[..., 2] -= src_robot[:, feet_src, 2].min()
-    src_robot = float(problem.scale) * src_robot + np.array([0.0, 0.0, float(problem.lift)])
     d = res.diagnostics
     arrays = {
         "qpos": qpos, "fps": np.asarray(float(res.fps)), "joint_names": np.asarray(robot.jnt_names),
         "body_names": np.asarray(robot.body_names), "body_parents": np.asarray(robot.body_parents),
-        "body_positions": np.asarray(fk), "source_positions": src_robot, "source_names": np.asarray(skeleton.names),
+        "body_positions": np.asarray(fk), "source_positions": np.asarray(problem.in_robot_frame(src)), "source_names": np.asarray(skeleton.names),
         "source_parents": np.asarray(skeleton.parents), "feet": np.asarray([problem.names[k] for k in problem.feet]),
-        "targets": np.asarray(problem.names), "contacts": np.asarray(d.contacts),
-        "position_error": np.asarray(d.position_error), "orientation_error": np.asarray(d.orientation_error),
-        "foot_slide": np.asarray(d.foot_slide), "foot_height": np.asarray(d.foot_height),
-        "penetration": np.asarray(d.penetration), "range_violation": np.asarray(d.range_violation),
-        "limit_hits": np.asarray(d.limit_hits), "joint_speed": np.asarray(d.joint_speed),
-        "jitter": np.asarray(d.jitter), "status": np.asarray(str(res.result) if not bool(res.success) else "successful"),
+        "targets": np.asarray(problem.names),
+        **{f: np.asarray(getattr(d, f)) for f in d.__dataclass_fields__ if f != "mask"},  # the diagnostics
+        "status": np.asarray(str(res.result) if not bool(res.success) else "successful"),
         "success": np.asarray(bool(res.success)), "robot": np.asarray(str(robot_path)),
         "source": np.asarray(str(source)), "map": np.asarray(str(map_path)),
     }

@@ -22,7 +22,7 @@ import numpy as np
 
 from .._errors import JaxanimError
 from .._types import Array, Bool, Float
-from ..kinematics._contacts import _clip_positions, _contacts, _feet, detect_foot_contacts, foot_joints
+from ..kinematics._contacts import _clip_positions, _contacts, _feet, _runs, detect_foot_contacts, foot_joints
 from ..skeleton._skeleton import Motion, Skeleton
 from ._solve import IKOptions, solve_ik_clip
 from ._targets import Target
@@ -48,13 +48,6 @@ class FootCleanup(eqx.Module):
     targets: Float[Array, "frames feet 3"]
     errors: Float[Array, "frames feet"]
     success: Bool[Array, " frames"]
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``[(start, stop), ...]`` of the runs of True in a 1-D bool array (``stop`` exclusive)."""
-    m = np.concatenate([[False], mask, [False]])
-    edges = np.flatnonzero(m[1:] != m[:-1])
-    return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
 
 
 def _pinned_path(P: np.ndarray, contacts: np.ndarray, blend: int) -> np.ndarray:

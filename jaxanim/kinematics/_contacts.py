@@ -120,3 +120,10 @@ def _contacts(skeleton, idx, P, dt, up, ground, height, speed):
     ground = float(h.min()) if ground is None else float(ground)
     v = np.linalg.norm(np.gradient(P, dt, axis=0), axis=-1) if P.shape[0] > 1 else np.zeros(h.shape)
     return (h - ground <= height) & (v <= speed)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``[(start, stop), ...]`` of the runs of True in a 1-D bool array (``stop`` exclusive)."""
+    m = np.concatenate([[False], mask, [False]])
+    edges = np.flatnonzero(m[1:] != m[:-1])
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))

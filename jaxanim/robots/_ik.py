@@ -52,7 +52,7 @@ import solvers
 from .. import rotations as rot
 from .._errors import JaxanimError, check_float, check_shape
 from .._types import Array, Float
-from ._kinematics import _check, _dof_columns, _kinematics, _plan, _points, _take, _targets
+from ._kinematics import _check, _dof_columns, _kinematics, _mm, _plan, _target_frames, _targets
 from ._robot import Robot
 
 #: The default ``position_tolerance``: 10 micrometres (robots are in metres).
@@ -97,7 +97,6 @@ class _Layout(eqx.Module):
     bounded: bool = eqx.field(static=True)  # some variable is a limited hinge / slide
     bodies: tuple[int, ...] = eqx.field(static=True)  # per target: its body
     rows: tuple[int, ...] = eqx.field(static=True)  # per target: row in [xpos (bodies); site_xpos (sites)]
-    sites: tuple[int, ...] = eqx.field(static=True)  # per target: its site, -1 for a body
     has_pos: tuple[bool, ...] = eqx.field(static=True)
     has_ori: tuple[bool, ...] = eqx.field(static=True)
 
@@ -151,7 +150,7 @@ def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
     if not var_dofs:
         raise JaxanimError("frozen: every joint is frozen (or the robot has none): nothing can move")
     bounded = any(robot.jnt_limited[j] and robot.jnt_types[j] in ("hinge", "slide") for j in scalar_joints)
-    bodies, rows, sites = [], [], []
+    bodies, rows = [], []
     for i, t in enumerate(targets):
         try:
             (b,), (r,) = _targets(robot, (t.site,))
@@ -159,21 +158,11 @@ def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
             raise JaxanimError(f"targets[{i}]: {str(e).removeprefix('names: ')}") from None
         bodies += [b]
         rows += [r]
-        sites += [r - robot.num_bodies if r >= robot.num_bodies else -1]
     return _Layout(
         tuple(var_dofs), tuple(scalar_vars), tuple(scalar_qadr), tuple(scalar_joints), tuple(rot_vars),
-        tuple(rot_qadr), bounded, tuple(bodies), tuple(rows), tuple(sites),
+        tuple(rot_qadr), bounded, tuple(bodies), tuple(rows),
         tuple(t.position is not None for t in targets), tuple(t.orientation is not None for t in targets),
     )
-
-
-# --- 3 x 3 products --------------------------------------------------------------------------------
-
-
-def _times(A, B):
-    """``A @ B`` over the last two axes for 3 x 3 blocks, elementwise (a batch of tiny dots is slow
-    under vmap on XLA:CPU)."""
-    return sum(A[..., :, c, None] * B[..., None, c, :] for c in range(3))
 
 
 # --- one problem's data, the pose map, the residual --------------------------------------------------
@@ -210,13 +199,7 @@ def _frames(robot: Robot, lay: _Layout, qpos, dtype):
     """Target points ``[K, 3]``, target frames ``[K, 3, 3]`` (body: ``xmat``; site: ``site_xmat``) and
     the kinematics they came from."""
     kin = _kinematics(robot, qpos, dtype)
-    R_world = kin[0]
-    points = _points(robot, R_world, kin[1], lay.rows, dtype)
-    R = _take(R_world, lay.bodies)
-    if any(s >= 0 for s in lay.sites):
-        is_site = np.asarray([s >= 0 for s in lay.sites])
-        R_site = rot.quat_to_matrix(_take(robot.site_quat.astype(dtype), [max(s, 0) for s in lay.sites]))
-        R = jnp.where(is_site[:, None, None], _times(R, R_site), R)
+    points, R = _target_frames(robot, kin[0], kin[1], lay.bodies, lay.rows, dtype)
     return points, R, kin
 
 
@@ -253,7 +236,7 @@ def _errors_and_rows(lay, targets, points, R, jacp, jacr, dtype, weighted=True):
     if ori:
         io = np.asarray(ori)
         R_goal = rot.quat_to_matrix(jnp.stack([jnp.asarray(targets[i].orientation, dtype) for i in ori]))
-        e = rot.matrix_to_rotvec(_times(R[io], jnp.swapaxes(R_goal, -1, -2)))  # world frame
+        e = rot.matrix_to_rotvec(_mm(R[io], jnp.swapaxes(R_goal, -1, -2)))  # world frame
         res.append(sqrt_w[io, None] * e)
         if jacr is not None:
             Li = rot.left_jacobian_inverse(e)

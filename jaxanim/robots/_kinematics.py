@@ -320,6 +320,26 @@ def _points(robot: Robot, R_world, p_world, rows, dtype):
     return _take(jnp.concatenate([p_world, site_xpos], axis=0), rows)
 
 
+def _target_frames(robot: Robot, R_world, p_world, bodies, rows, dtype):
+    """World points ``[K, 3]`` and frames ``[K, 3, 3]`` of targets (a body's ``xmat``, a site's
+    ``site_xmat``), ``bodies`` and ``rows`` as :func:`_targets` gives them."""
+    points = _points(robot, R_world, p_world, rows, dtype)
+    R = _take(R_world, bodies)
+    sites = [r - robot.num_bodies for r in rows]
+    if any(s >= 0 for s in sites):
+        R_site = rot.quat_to_matrix(_take(robot.site_quat.astype(dtype), [max(s, 0) for s in sites]))
+        R = jnp.where(np.asarray([s >= 0 for s in sites])[:, None, None], _mm(R, R_site), R)
+    return points, R
+
+
+def _surface(robot: Robot, R_world, p_world, points, dtype):
+    """World positions ``[P, 3]`` of the surface points ``points`` (indices into ``robot.point_pos``)
+    and the height above ``z = 0`` of the surface around each (``z - point_radius``)."""
+    bodies = [robot.point_bodies[i] for i in points]
+    world = _at_bodies(R_world, p_world, bodies, _take(robot.point_pos, points), dtype)
+    return world, world[:, 2] - _take(robot.point_radius.astype(dtype), points)
+
+
 def _dof_columns(robot: Robot, kin, points, bodies, dofs, dtype):
     """``(jacp, jacr)`` ``[K, n, 3]``: MuJoCo's Jacobian columns of the dofs ``dofs`` at the target
     ``points`` on ``bodies`` (zero where a dof does not move the target's body); ``kin`` is

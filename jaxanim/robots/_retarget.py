@@ -114,6 +114,6 @@ def retarget_clips(
     out = []
     for i, m in enumerate(motions):
         one = jax.tree.map(lambda x: x[i], batch)
-        n = m.num_frames
-        out.append(jax.tree.map(lambda x: x[:n] if getattr(x, "ndim", 0) and x.shape[0] == length else x, one))
+        n = m.num_frames  # every array of a result that is not a scalar is per frame
+        out.append(jax.tree.map(lambda x: x[:n] if getattr(x, "ndim", 0) else x, one))
     return out

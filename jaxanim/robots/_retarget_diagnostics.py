@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import rotations as rot
 from .._types import Array, Bool, Float
-from ._kinematics import _kinematics, _mm, _mv, _points, _take
+from ._kinematics import _kinematics, _mm, _surface, _target_frames
 from ._retarget_problem import RetargetProblem
 from ._robot import Robot
 from ._tangent import _difference, _Layout
@@ -58,22 +58,14 @@ class RetargetDiagnostics(eqx.Module):
 def _frame_measures(robot: Robot, prob: RetargetProblem, q, p_target, R_target):
     dtype = q.dtype
     R_world, p_world, *_ = _kinematics(robot, q, dtype)
-    points = _points(robot, R_world, p_world, prob.rows, dtype)
-    R = _take(R_world, prob.bodies)
-    sites = [r - robot.num_bodies if r >= robot.num_bodies else -1 for r in prob.rows]
-    if any(s >= 0 for s in sites):
-        R_site = rot.quat_to_matrix(_take(robot.site_quat.astype(dtype), [max(s, 0) for s in sites]))
-        R = jnp.where(np.asarray([s >= 0 for s in sites])[:, None, None], _mm(R, R_site), R)
+    points, R = _target_frames(robot, R_world, p_world, prob.bodies, prob.rows, dtype)
     pos_err = jnp.linalg.norm(points - p_target, axis=-1)
     ori_err = jnp.linalg.norm(rot.matrix_to_rotvec(_mm(R, jnp.swapaxes(R_target, -1, -2))), axis=-1)
-    lowest = []
-    for idx in prob.foot_points:
-        bodies = [robot.point_bodies[i] for i in idx]
-        pts = _take(p_world, bodies) + _mv(_take(R_world, bodies), _take(robot.point_pos.astype(dtype), idx))
-        lowest.append(jnp.min(pts[:, 2] - _take(robot.point_radius.astype(dtype), idx)))
-    return pos_err, ori_err, points[np.asarray(prob.feet)], jnp.stack(lowest)
+    lowest = jnp.stack([jnp.min(_surface(robot, R_world, p_world, idx, dtype)[1]) for idx in prob.foot_points])
+    return pos_err, ori_err, points[np.asarray(prob.feet)], lowest
 
 
+@eqx.filter_jit
 def diagnostics(robot: Robot, problem: RetargetProblem, qpos: Float[Array, "T nq"]) -> RetargetDiagnostics:
     """The per-frame measures of the robot clip ``qpos`` for ``problem`` (one clip; ``vmap`` for more)."""
     dtype = qpos.dtype

@@ -18,15 +18,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError
+from .._linalg import einsum
 from .._types import Array, Bool, Float
-from ..kinematics._contacts import detect_foot_contacts
+from ..kinematics._contacts import _runs, detect_foot_contacts
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
-from ._kinematics import _targets, forward_kinematics
+from ._kinematics import _kinematics, _surface, _target_frames, _targets
 from ._mapping import Calibration, RetargetMap, calibrate, load_mapping
 from ._robot import Robot
+from ._tangent import _free_joint
 
 __all__ = ["RetargetProblem", "prepare_retarget", "stack_problems"]
 
@@ -54,6 +57,9 @@ class RetargetProblem(eqx.Module):
             flat (its zero pose), m.
         mask: ``[T]`` the clip's frames (``False``: padding).
         frame_time: seconds per frame.
+        axes: ``[3, 3]`` the source's world axes in the robot's (:class:`Calibration`).
+        ground: the source's ground height along the robot's up axis (its lowest foot joint over the
+            clip, source units).
     """
 
     names: tuple[str, ...] = eqx.field(static=True)
@@ -73,6 +79,8 @@ class RetargetProblem(eqx.Module):
     foot_height: Float[Array, " F"]
     mask: Bool[Array, " T"]
     frame_time: Float[Array, ""]
+    axes: Float[Array, "3 3"]
+    ground: Float[Array, ""]
 
     @property
     def num_frames(self) -> int:
@@ -85,27 +93,18 @@ class RetargetProblem(eqx.Module):
 
     def target_positions(self) -> Float[Array, "T K 3"]:
         """The position targets in the robot's frame, m: ``scale * positions + lift * z``."""
-        up = jnp.zeros(3, self.positions.dtype).at[2].set(1)
-        return self.scale * self.positions + (self.lift * up)[None, None, :]
+        return (self.scale * self.positions).at[..., 2].add(self.lift)
+
+    def in_robot_frame(self, positions: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+        """Source world positions (any joints, source units) in the robot's frame, m, as the targets
+        are placed: turned by ``axes``, above ``ground``, scaled and lifted."""
+        p = einsum("xy,...y->...x", self.axes.astype(positions.dtype), positions).at[..., 2].add(-self.ground)
+        return (self.scale * p).at[..., 2].add(self.lift)
 
     def anchor_positions(self) -> Float[Array, "T F 3"]:
         """The planted feet's positions, m: the scaled anchor at the foot's standing height."""
         h = jnp.broadcast_to(self.foot_height, self.anchors.shape[:-1])[..., None]
         return jnp.concatenate([self.scale * self.anchors, h], axis=-1)
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    m = np.concatenate([[False], mask, [False]])
-    edges = np.flatnonzero(m[1:] != m[:-1])
-    return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
-
-
-def _descendants(robot: Robot, body: int) -> set[int]:
-    out = {body}
-    for b in range(body + 1, robot.num_bodies):
-        if robot.body_parents[b] in out:
-            out.add(b)
-    return out
 
 
 def _yaw(R: np.ndarray) -> np.ndarray:
@@ -136,11 +135,7 @@ def _with_root(mapping: RetargetMap) -> RetargetMap:
 
 
 def _check_robot(robot: Robot, root_body: int) -> None:
-    free = [j for j, t in enumerate(robot.jnt_types) if t == "free"]
-    b = root_body
-    while b > 0 and not any(robot.jnt_bodies[j] == b for j in free):
-        b = robot.body_parents[b]
-    if b <= 0:
+    if _free_joint(robot, root_body) is None:
         raise JaxanimError(
             f"robot: the root target {robot.body_names[root_body]!r} is not moved by a free joint, so the robot "
             "cannot follow the clip through the world; load it with load_robot(path, floating_base=True)")
@@ -194,7 +189,7 @@ def prepare_retarget(
         offsets = np.concatenate([np.asarray(calibrate(full, skeleton, robot).offset, np.float64)[:1], offsets])
     bodies, rows = _targets(robot, full.targets)
     _check_robot(robot, bodies[0])
-    T, K = motion.num_frames, len(full.targets)
+    K = len(full.targets)
     length = T if length is None else int(length)
     if length < T:
         raise JaxanimError(f"length: {length} is shorter than the clip ({T} frames)")
@@ -216,27 +211,23 @@ def prepare_retarget(
     ground = P[:, feet_k, 2].min()
     P[..., 2] -= ground
     # the robot's feet standing in the zero pose: height of each foot target above its lowest point
-    zero = forward_kinematics(robot, robot.qpos0)
-    p_rows = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])
-    R_rows = np.concatenate([np.asarray(zero.xmat, np.float64), np.asarray(zero.site_xmat, np.float64)])
-    pts_world = (np.einsum("pxy,py->px", np.asarray(zero.xmat, np.float64)[list(robot.point_bodies)],
-                           np.asarray(robot.point_pos, np.float64))
-                 + np.asarray(zero.xpos, np.float64)[list(robot.point_bodies)]) if robot.point_bodies else np.zeros((0, 3))
-    lowest = pts_world[:, 2] - np.asarray(robot.point_radius, np.float64) if robot.point_bodies else np.zeros(0)
+    dtype = robot.qpos0.dtype
+    R_world, p_world, *_ = _kinematics(robot, robot.qpos0, dtype)
+    p_zero, R_zero = (np.asarray(x, np.float64) for x in _target_frames(robot, R_world, p_world, bodies, rows, dtype))
+    below = _tree.subtree(robot.body_parents)
     foot_points, foot_height = [], []
     for k in feet_k:
-        own = _descendants(robot, bodies[k])
-        idx = tuple(i for i, b in enumerate(robot.point_bodies) if b in own)
+        idx = tuple(i for i, b in enumerate(robot.point_bodies) if below[bodies[k], b])
         if not idx:
             raise JaxanimError(f"robot: the foot {full.targets[k]!r} has no collision geometry (sphere, capsule, box, "
                                "cylinder or ellipsoid) on it or below it, so its sole and the ground cannot be found")
         foot_points.append(idx)
-        foot_height.append(p_rows[rows[k], 2] - lowest[list(idx)].min())
+        foot_height.append(p_zero[k, 2] - float(np.min(_surface(robot, R_world, p_world, idx, dtype)[1])))
     anchors = np.zeros((T, len(feet_k), 2))
     anchor_R = np.broadcast_to(np.eye(3), (T, len(feet_k), 3, 3)).copy()
     stance_height = np.zeros(len(feet_k))
     for f, k in enumerate(feet_k):
-        R0 = R_rows[rows[k]]
+        R0 = R_zero[k]
         runs = _runs(contacts[:, f])
         for a, b in runs:
             anchors[a:b, f] = P[a:b, k, :2].mean(axis=0)
@@ -244,7 +235,6 @@ def prepare_retarget(
             anchor_R[a:b, f] = _rot_z(np.arctan2(np.sin(heading).mean(), np.cos(heading).mean())) @ R0
         stance = contacts[:, f]
         stance_height[f] = np.median(P[stance, k, 2]) if stance.any() else P[:, k, 2].min()
-    dtype = robot.qpos0.dtype
     pad = length - T
 
     def padded(x, fill=None):
@@ -262,7 +252,8 @@ def prepare_retarget(
         scale=jnp.asarray(calib.scale, dtype), contacts=jnp.asarray(padded(contacts, False)),
         anchors=jnp.asarray(padded(anchors), dtype), anchor_orientations=jnp.asarray(padded(_quat(anchor_R)), dtype),
         stance_height=jnp.asarray(stance_height, dtype), foot_height=jnp.asarray(foot_height, dtype),
-        mask=jnp.asarray(np.arange(length) < T), frame_time=jnp.asarray(float(motion.frame_time), dtype))
+        mask=jnp.asarray(np.arange(length) < T), frame_time=jnp.asarray(float(motion.frame_time), dtype),
+        axes=jnp.asarray(axes, dtype), ground=jnp.asarray(ground, dtype))
 
 
 def _rot_matrices(quats: np.ndarray) -> np.ndarray:

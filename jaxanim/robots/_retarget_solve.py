@@ -41,9 +41,9 @@ import solvers
 from .. import rotations as rot
 from .._linalg import einsum
 from .._types import Array, Float
-from ._kinematics import _dof_columns, _kinematics, _mm, _mv, _plan, _points, _take
+from ._kinematics import _dof_columns, _kinematics, _mm, _surface, _target_frames
 from ._retarget_diagnostics import RetargetDiagnostics, diagnostics
-from ._tangent import _difference, _Layout, _retract
+from ._tangent import _difference, _free_joint, _Layout, _retract
 from ._retarget_problem import RetargetProblem
 from ._robot import Robot
 
@@ -133,24 +133,15 @@ class _Frame(eqx.Module):
     w_posture: Array  # []
 
 
-def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame, with_jacobian: bool = True):
-    """``(r [m], J [m, nv] or None)`` of one frame."""
+def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame):
+    """``(r [m], J [m, nv])`` of one frame."""
     dtype = q.dtype
     kin = _kinematics(robot, q, dtype)
-    R_world, p_world = kin[0], kin[1]
-    bodies, rows = prob.bodies, prob.rows
-    points = _points(robot, R_world, p_world, rows, dtype)
-    R = _take(R_world, bodies)
-    sites = [r - robot.num_bodies if r >= robot.num_bodies else -1 for r in rows]
-    if any(s >= 0 for s in sites):
-        R_site = rot.quat_to_matrix(_take(robot.site_quat.astype(dtype), [max(s, 0) for s in sites]))
-        R = jnp.where(np.asarray([s >= 0 for s in sites])[:, None, None], _mm(R, R_site), R)
+    bodies = prob.bodies
+    points, R = _target_frames(robot, kin[0], kin[1], bodies, prob.rows, dtype)
     feet = list(prob.feet)
     pts_idx = [i for f in prob.foot_points for i in f]
-    pt_bodies = [robot.point_bodies[i] for i in pts_idx]
-    Rb = _take(R_world, pt_bodies)
-    surface = _take(p_world, pt_bodies) + _mv(Rb, _take(robot.point_pos.astype(dtype), pts_idx))
-    height = surface[:, 2] - _take(robot.point_radius.astype(dtype), pts_idx)
+    surface, height = _surface(robot, kin[0], kin[1], pts_idx, dtype)
     e_match = rot.matrix_to_rotvec(_mm(R, jnp.swapaxes(fr.R, -1, -2)))
     e_plant = rot.matrix_to_rotvec(_mm(R[np.asarray(feet)], jnp.swapaxes(fr.anchor_R, -1, -2)))
     sp, so, spl = _sqrt(fr.wp)[:, None], _sqrt(fr.wo)[:, None], _sqrt(fr.w_plant)[:, None]
@@ -163,12 +154,10 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
         (sp * (points - fr.p)).ravel(), (so * e_match).ravel(),
         (spl * (points[np.asarray(feet)] - fr.anchor_p)).ravel(), (spl * e_plant).ravel(),
         sg * ground, _sqrt(fr.w_posture) * posture])
-    if not with_jacobian:
-        return r, None
     dofs = np.arange(robot.nv)
     jacp, jacr = _dof_columns(robot, kin, points, bodies, dofs, dtype)  # [K, nv, 3]
     jacp, jacr = jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)  # [K, 3, nv]
-    jz = _dof_columns(robot, kin, surface, pt_bodies, dofs, dtype)[0][:, :, 2]  # [P, nv]
+    jz = _dof_columns(robot, kin, surface, [robot.point_bodies[i] for i in pts_idx], dofs, dtype)[0][:, :, 2]  # [P, nv]
     Li = rot.left_jacobian_inverse(e_match)
     Lp = rot.left_jacobian_inverse(e_plant)
     Jo = sum(Li[:, :, c, None] * jacr[:, c, None, :] for c in range(3))
@@ -185,8 +174,6 @@ def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
     """The per-frame targets and weights ``[T, ...]``: a foot's matching is off while it is planted."""
     mask = prob.mask.astype(dtype)
     contacts = prob.contacts.astype(dtype) * mask[:, None]
-    foot = np.zeros(len(prob.names), bool)
-    foot[list(prob.feet)] = True
     planted = jnp.zeros((prob.num_frames, len(prob.names)), dtype).at[:, np.asarray(prob.feet)].set(contacts)
     keep = mask[:, None] * (1.0 - planted)
     return _Frame(
@@ -301,13 +288,8 @@ def _free(lay: _Layout, rng, q, g, dtype):
 
 def _initial(robot: Robot, prob: RetargetProblem, dtype):
     """Every frame at ``qpos0`` with the root's free joint on the root target."""
-    plan = _plan(robot)
-    b, free_j = prob.bodies[0], None
-    while b > 0 and free_j is None:
-        free_j = next((j for j in range(robot.num_joints) if robot.jnt_bodies[j] == b and plan.free[j]), None)
-        b = robot.body_parents[b]
     q = jnp.broadcast_to(robot.qpos0.astype(dtype), (prob.num_frames, robot.nq))
-    a = robot.jnt_qposadr[free_j]
+    a = robot.jnt_qposadr[_free_joint(robot, prob.bodies[0])]
     p = prob.target_positions().astype(dtype)[:, 0]
     return q.at[:, a:a + 3].set(p).at[:, a + 3:a + 7].set(prob.orientations.astype(dtype)[:, 0])
 

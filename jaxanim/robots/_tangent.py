@@ -55,3 +55,13 @@ def _difference(lay: _Layout, qa, qb):
         qi = lay.rot_q[:, None] + np.arange(4)
         v = v.at[..., lay.rot_dofs].set(rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(qa[..., qi]), qb[..., qi])))
     return v
+
+
+def _free_joint(robot: Robot, body: int) -> int | None:
+    """The free joint that moves ``body``: on it or on its nearest ancestor that has one (``None``: none)."""
+    while body > 0:
+        for j, (t, b) in enumerate(zip(robot.jnt_types, robot.jnt_bodies)):
+            if t == "free" and b == body:
+                return j
+        body = robot.body_parents[body]
+    return None
