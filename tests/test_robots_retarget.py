@@ -121,24 +121,24 @@ def _check_clip(res, path, feet, penetration=PENETRATION):
 def walk():
     skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
     robot = robots.load_robot(robots.default_robot_path())
-    short = jaxanim.Motion(motion.rotations[:90], motion.translations[:90], motion.frame_time)
-    batch = robots.retarget_clips(skel, [motion, short], robot, robots.default_mapping_path())
-    return skel, motion, short, robot, batch
+    return skel, motion, robot, robots.retarget(skel, motion, robot, robots.default_mapping_path())
 
 
 def test_walk_onto_the_shipped_humanoid_plants_its_feet(walk):
-    skel, motion, _, robot, batch = walk
-    res = batch[0]
+    skel, motion, robot, res = walk
     assert res.qpos.shape == (motion.num_frames, robot.nq)
     assert float(res.fps) == pytest.approx(1 / float(motion.frame_time))
     summary = _check_clip(res, robots.default_robot_path(), ("left_ankle_roll_link", "right_ankle_roll_link"))
     assert summary["matching_error"] < 0.05
 
 
-def test_padded_clips_equal_the_clip_alone(walk):
-    skel, _, short, robot, batch = walk
-    alone = robots.retarget(skel, short, robot, robots.default_mapping_path())
-    assert batch[1].qpos.shape == alone.qpos.shape
+def test_padded_clips_equal_the_clip_alone(tiny):
+    skel, motion, robot, mapping, options = tiny
+    short = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
+    long = jaxanim.Motion(motion.rotations[:16], motion.translations[:16], motion.frame_time)
+    batch = robots.retarget_clips(skel, [long, short], robot, mapping, options=options)
+    alone = robots.solve_retarget(robot, robots.prepare_retarget(skel, short, robot, mapping), options)
+    assert batch[1].qpos.shape == alone.qpos.shape == (12, robot.nq)
     np.testing.assert_allclose(np.asarray(batch[1].qpos), np.asarray(alone.qpos), atol=1e-8)
     np.testing.assert_allclose(np.asarray(batch[1].diagnostics.position_error),
                                np.asarray(alone.diagnostics.position_error), atol=1e-8)
@@ -167,17 +167,23 @@ TINY = """<mujoco model="tiny"><worldbody><body name="pelvis" pos="0 0 0.5"><fre
 </body></worldbody></mujoco>"""
 
 
-def test_gradient_of_the_solve_against_finite_differences(walk):
-    skel, motion, _, _, _ = walk
+@pytest.fixture(scope="module")
+def tiny():
+    """A two-legged robot of 4 hinges: its solves compile in seconds (3 iterations)."""
+    skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
     robot = robots.robot_from_mujoco(mujoco.MjModel.from_xml_string(TINY))
     mapping = {"root": {"source": "Hips", "target": "pelvis"},
                "pairs": [{"source": "LeftFoot", "target": "lfoot", "foot": True},
                          {"source": "RightFoot", "target": "rfoot", "foot": True},
                          {"source": "LeftUpLeg", "target": "lthigh", "orientation_weight": 0.0},
                          {"source": "RightUpLeg", "target": "rthigh", "orientation_weight": 0.0}]}
+    return skel, motion, robot, mapping, robots.RetargetOptions(iterations=3)
+
+
+def test_gradient_of_the_solve_against_finite_differences(tiny):
+    skel, motion, robot, mapping, options = tiny
     clip = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
     problem = robots.prepare_retarget(skel, clip, robot, mapping)
-    options = robots.RetargetOptions(iterations=3)
 
     def loss(scale, weights):
         p = robots.RetargetProblem(**{**{f: getattr(problem, f) for f in problem.__dataclass_fields__},
@@ -198,7 +204,7 @@ def test_gradient_of_the_solve_against_finite_differences(walk):
 
 
 def test_bad_input_is_named(walk):
-    skel, motion, _, robot, _ = walk
+    skel, motion, robot, _ = walk
     nan = jaxanim.Motion(motion.rotations.at[5, 2, 0].set(jnp.nan), motion.translations, motion.frame_time)
     with pytest.raises(jaxanim.JaxanimError, match=r"motion: .*NaN.* \[5\]"):
         robots.prepare_retarget(skel, nan, robot, robots.default_mapping_path())
@@ -216,7 +222,6 @@ def test_bad_input_is_named(walk):
                         options=robots.RetargetOptions(plant_weight=-1.0))
 
 
-@pytest.mark.acceptance  # a third compile of the humanoid's solve (about 40 s): python -m pytest -m acceptance
 def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):
     from jaxanim.app import main
 
@@ -225,9 +230,9 @@ def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):
     text = capsys.readouterr().out
     assert "foot slide" in text and "penetration" in text and "limit hits" in text and "matching error" in text
     with np.load(out) as f:
-        _, motion, _, robot, batch = walk
+        _, motion, robot, res = walk
         assert f["qpos"].shape == (motion.num_frames, robot.nq)
         assert {"fps", "joint_names", "body_names", "foot_slide", "penetration", "position_error"} <= set(f.files)
-        np.testing.assert_allclose(f["qpos"], np.asarray(batch[0].qpos), atol=1e-8)  # the same solve
+        np.testing.assert_allclose(f["qpos"], np.asarray(res.qpos), atol=1e-8)  # the same solve
     assert main(["retarget", "--out", str(tmp_path / "x.txt")]) == 2
     assert "--out" in capsys.readouterr().err
