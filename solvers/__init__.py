@@ -15,7 +15,10 @@ from ._least_squares import (
     OptimistixSolver as OptimistixSolver,
     least_squares as least_squares,
 )
-from ._banded import block_tridiagonal_solve as block_tridiagonal_solve
+from ._banded import (
+    block_pentadiagonal_solve as block_pentadiagonal_solve,
+    block_tridiagonal_solve as block_tridiagonal_solve,
+)
 from .lqr import LQRSolution as LQRSolution, lqr as lqr
 from ._riccati import RiccatiSolution as RiccatiSolution, care as care, dare as dare
 from .ilqr import ILQROptions as ILQROptions, TrajectorySolution as TrajectorySolution, ddp as ddp, ilqr as ilqr

@@ -56,6 +56,30 @@ def test_block_tridiagonal_solve_equals_a_dense_solve():
     assert not bool(ok)
 
 
+@pytest.mark.parametrize("T, n", [(1, 3), (2, 3), (7, 5), (10, 4)])
+def test_block_pentadiagonal_solve_equals_a_dense_solve(T, n):
+    """The retargeting solve's system (dense blocks in time, diagonal couplings one and two steps
+    apart), odd and even lengths, against numpy's dense solve."""
+    rng = np.random.default_rng(T)
+    J = rng.normal(size=(T, 2 * n, n))
+    D = np.einsum("tmi,tmj->tij", J, J) + np.eye(n)
+    e1, e2 = rng.uniform(-0.5, 0, size=(max(T - 1, 0), n)), rng.uniform(0, 0.3, size=(max(T - 2, 0), n))
+    H = np.zeros((T * n, T * n))
+    for t in range(T):
+        H[t * n:(t + 1) * n, t * n:(t + 1) * n] = D[t]
+    for k, e in ((1, e1), (2, e2)):
+        for t in range(T - k):
+            H[(t + k) * n:(t + k + 1) * n, t * n:(t + 1) * n] = H[t * n:(t + 1) * n, (t + k) * n:(t + k + 1) * n] = np.diag(e[t])
+    b = rng.normal(size=(T, n))
+    x, ok = solvers.block_pentadiagonal_solve(jnp.asarray(D), jnp.asarray(e1), jnp.asarray(e2), jnp.asarray(b))
+    assert bool(ok)
+    np.testing.assert_allclose(np.asarray(x).ravel(), np.linalg.solve(H, b.ravel()), rtol=1e-10, atol=1e-12)
+    bad = D.copy()
+    bad[T // 2] = -np.eye(n)
+    _, ok = solvers.block_pentadiagonal_solve(jnp.asarray(bad), jnp.asarray(e1), jnp.asarray(e2), jnp.asarray(b))
+    assert not bool(ok)
+
+
 def _mujoco_lowest(model, qpos, bodies):
     """Per frame, the lowest surface point of the geoms on ``bodies`` (MuJoCo's own kinematics)."""
     data = mujoco.MjData(model)

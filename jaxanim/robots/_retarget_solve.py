@@ -19,19 +19,21 @@ Gauss-Newton, Bertsekas 1982).
 
 Each iteration linearizes every frame's residual (one batched kinematics and Jacobian pass) and
 solves the Levenberg-Marquardt normal equations. Their matrix couples a frame with its two
-neighbours on each side (velocity: one, acceleration: two); grouped two frames to a block it is
-block tridiagonal and :func:`solvers.block_tridiagonal_solve` solves it in O(T) (``T/2`` Cholesky
-factorizations of ``2 nv``). In the smoothness terms the difference of two root rotations is
-linearized as ``delta_{t+1} - delta_t`` (exact to first order in the per-frame rotation, which is
+neighbours on each side (velocity: one, acceleration: two) through diagonal blocks;
+:func:`solvers.block_pentadiagonal_solve` solves it in O(T) (frames paired into blocks of ``2 nv``, one
+Cholesky factorization and triangular inverse per pair). In the smoothness terms the difference of
+two root rotations is linearized as ``delta_{t+1} - delta_t`` (exact to first order in the per-frame rotation, which is
 small at motion-capture frame rates).
 
-A fixed number of iterations (``RetargetOptions.iterations``) runs in a ``lax.scan``, so the result is
-differentiable with respect to the weights and the scale (reverse mode through the iterations).
+The iterations run until converged, at most ``RetargetOptions.iterations``, in equinox's checkpointed
+``while_loop``: it stops early and still has a reverse-mode derivative, so the result is differentiable
+with respect to the weights and the scale (through the iterations taken).
 """
 
 from __future__ import annotations
 
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -55,7 +57,8 @@ class RetargetOptions(eqx.Module):
     values do not recompile; ``iterations`` is static).
 
     Attributes:
-        iterations: Levenberg-Marquardt iterations over the whole clip.
+        iterations: the most Levenberg-Marquardt iterations over the whole clip (the solve stops
+            earlier once converged; under ``vmap``, once every clip has).
         velocity_weight: ``w_v`` on every dof's velocity (in (rad/s)^-2 against the matching's m^-2:
             the default 1e-6 weighs a velocity of 1 rad/s like a matching error of 1 mm).
         acceleration_weight: ``w_a`` on every dof's acceleration.
@@ -64,7 +67,7 @@ class RetargetOptions(eqx.Module):
         posture_weight: ``w_posture`` pulling the joints towards the zero pose (unmatched joints).
         max_joint_velocity: ``vmax`` of the hinges and slides (rad/s or m/s); ``inf``: none.
         velocity_limit_weight: ``w_vmax`` on the joint speed above ``vmax``.
-        rtol: convergence: the last iteration changed the cost by at most ``rtol`` of it, or moved
+        rtol: convergence: an accepted iteration changed the cost by at most ``rtol`` of it, or moved
             no coordinate by more than ``xtol``.
         xtol: see ``rtol`` (rad or m).
     """
@@ -134,7 +137,8 @@ class _Frame(eqx.Module):
 
 
 def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame):
-    """``(r [m], J [m, nv])`` of one frame."""
+    """``(r [m], J [m, nv], posture)`` of one frame: the posture term's rows are the identity on the
+    joints' dofs (``w_posture`` times ``posture``), added by :func:`_frame_normal` without forming them."""
     dtype = q.dtype
     kin = _kinematics(robot, q, dtype)
     bodies = prob.bodies
@@ -153,7 +157,7 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
     r = jnp.concatenate([
         (sp * (points - fr.p)).ravel(), (so * e_match).ravel(),
         (spl * (points[np.asarray(feet)] - fr.anchor_p)).ravel(), (spl * e_plant).ravel(),
-        sg * ground, _sqrt(fr.w_posture) * posture])
+        sg * ground])
     dofs = np.arange(robot.nv)
     jacp, jacr = _dof_columns(robot, kin, points, bodies, dofs, dtype)  # [K, nv, 3]
     jacp, jacr = jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)  # [K, 3, nv]
@@ -162,12 +166,11 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
     Lp = rot.left_jacobian_inverse(e_plant)
     Jo = sum(Li[:, :, c, None] * jacr[:, c, None, :] for c in range(3))
     Jpl = sum(Lp[:, :, c, None] * jacr[np.asarray(feet)][:, c, None, :] for c in range(3))
-    Jpost = jnp.zeros((len(lay.joint_dofs), robot.nv), dtype).at[np.arange(len(lay.joint_dofs)), lay.joint_dofs].set(1.0)
     J = jnp.concatenate([
         (sp[:, :, None] * jacp).reshape(-1, robot.nv), (so[:, :, None] * Jo).reshape(-1, robot.nv),
         (spl[:, :, None] * jacp[np.asarray(feet)]).reshape(-1, robot.nv), (spl[:, :, None] * Jpl).reshape(-1, robot.nv),
-        (sg * jax.nn.sigmoid(-height / soft))[:, None] * jz, _sqrt(fr.w_posture) * Jpost])
-    return r, J
+        (sg * jax.nn.sigmoid(-height / soft))[:, None] * jz])
+    return r, J, posture
 
 
 def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
@@ -182,6 +185,15 @@ def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
         anchor_p=prob.anchor_positions().astype(dtype), anchor_R=rot.quat_to_matrix(prob.anchor_orientations.astype(dtype)),
         w_plant=contacts * opts.plant_weight.astype(dtype), w_ground=jnp.broadcast_to(mask[:, None], contacts.shape) * opts.ground_weight.astype(dtype),
         w_posture=mask * opts.posture_weight.astype(dtype))
+
+
+def _frame_normal(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame):
+    """``(cost, J'J [nv, nv], J'r [nv])`` of one frame's terms."""
+    r, J, posture = _frame_residual(robot, prob, lay, q, fr)
+    d = lay.joint_dofs
+    JtJ = einsum("mi,mj->ij", J, J).at[d, d].add(fr.w_posture)
+    Jtr = einsum("mi,m->i", J, r).at[d].add(fr.w_posture * posture)
+    return 0.5 * (jnp.sum(r**2) + fr.w_posture * jnp.sum(posture**2)), JtJ, Jtr
 
 
 # --- the smoothness terms and the banded system ------------------------------------------------------------
@@ -235,40 +247,12 @@ def _normal_equations(JtJ, g, c, a, free, mu):
     return H, e1, e2, g * free, damp * free
 
 
-def _banded_solve(H, e1, e2, rhs):
-    """Solve the block-pentadiagonal system (diagonal off-diagonal bands) by pairing frames."""
-    T, n = rhs.shape
-    if T % 2:  # one identity frame more
-        H = jnp.concatenate([H, jnp.eye(n, dtype=H.dtype)[None]])
-        e1 = jnp.concatenate([e1, jnp.zeros((1, n), H.dtype)])
-        e2 = jnp.concatenate([e2, jnp.zeros((1, n), H.dtype)])
-        rhs = jnp.concatenate([rhs, jnp.zeros((1, n), H.dtype)])
-    N = H.shape[0] // 2
-    diag = jax.vmap(jnp.diag)
-    E1 = diag(e1[0::2])  # H[2s+1, 2s]
-    D = jnp.concatenate([jnp.concatenate([H[0::2], E1], axis=2), jnp.concatenate([E1, H[1::2]], axis=2)], axis=1)
-    if N > 1:
-        s = np.arange(1, N)
-        zero = jnp.zeros((N - 1, n, n), H.dtype)
-        top = jnp.concatenate([diag(e2[2 * s - 2]), diag(e1[2 * s - 1])], axis=2)  # H[2s, 2s-2], H[2s, 2s-1]
-        bottom = jnp.concatenate([zero, diag(e2[2 * s - 1])], axis=2)  # H[2s+1, 2s-2] = 0, H[2s+1, 2s-1]
-        B = jnp.concatenate([top, bottom], axis=1)
-    else:
-        B = jnp.zeros((0, 2 * n, 2 * n), H.dtype)
-    x, ok = solvers.block_tridiagonal_solve(D, B, rhs.reshape(N, 2 * n))
-    return x.reshape(2 * N, n)[:T], ok
-
-
 # --- the iteration ----------------------------------------------------------------------------------------
 
 
 def _linearize(robot, prob, lay, q, frames, opts):
     """``(cost, J'J [T, n, n], J'r [T, n], pair terms)`` at ``q``."""
-    def one(qt, fr):
-        r, J = _frame_residual(robot, prob, lay, qt, fr)
-        return 0.5 * jnp.sum(r**2), einsum("mi,mj->ij", J, J), einsum("mi,m->i", J, r)
-
-    local, JtJ, Jtr = jax.vmap(one)(q, frames)
+    local, JtJ, Jtr = jax.vmap(lambda qt, fr: _frame_normal(robot, prob, lay, qt, fr))(q, frames)
     c, o, a, acc, smooth = _pair_terms(lay, q, prob, opts)
     return jnp.sum(local) + smooth, JtJ, Jtr, (c, o, a, acc)
 
@@ -294,17 +278,22 @@ def _initial(robot: Robot, prob: RetargetProblem, dtype):
     return q.at[:, a:a + 3].set(p).at[:, a + 3:a + 7].set(prob.orientations.astype(dtype)[:, 0])
 
 
-def _iterate(robot, prob, lay, rng, q0, frames, opts, iterations, dtype):
-    """``iterations`` Levenberg-Marquardt steps of the whole clip from ``q0``."""
-    lin0 = _linearize(robot, prob, lay, q0, frames, opts)
+def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
+    """Levenberg-Marquardt steps of the whole clip from ``q0`` until converged (``opts.rtol``,
+    ``opts.xtol``), at most ``opts.iterations``; returns ``(q, cost, converged, steps)``.
 
-    def step(carry, _):
-        q, lin, (mu, nu), last, last_dx = carry
+    The loop is equinox's checkpointed ``while_loop``: it stops early (under ``vmap``, when every
+    clip has converged) and still has a reverse-mode derivative."""
+    lin0 = _linearize(robot, prob, lay, q0, frames, opts)
+    rtol, xtol = opts.rtol.astype(dtype), opts.xtol.astype(dtype)
+
+    def step(carry):
+        q, lin, (mu, nu), _, _, k = carry
         cost, JtJ, Jtr, (c, o, a, acc) = lin
         g = _gradient(Jtr, c, o, a, acc)
         free = _free(lay, rng, q, g, dtype)
         H, e1, e2, g, damp = _normal_equations(JtJ, g, c, a, free, mu)
-        delta, ok = _banded_solve(H, e1, e2, -g)
+        delta, ok = solvers.block_pentadiagonal_solve(H, e1, e2, -g)
         delta = jnp.where(ok, delta, 0.0)
         q_new = jax.vmap(lambda qt, dt: _retract(lay, rng, qt, dt))(q, delta)
         lin_new = _linearize(robot, prob, lay, q_new, frames, opts)
@@ -315,17 +304,18 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, iterations, dtype):
         accept = ok & jnp.isfinite(cost_new) & (actual > 0)
         rho = actual / jnp.maximum(predicted, jnp.finfo(dtype).tiny)
         pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(accept, x, y), a, b)  # noqa: E731
-        change = jnp.where(accept, actual / jnp.maximum(cost, jnp.finfo(dtype).tiny), last)
-        dx = jnp.where(accept, jnp.max(jnp.abs(delta)), last_dx)
+        converged = accept & ((actual <= rtol * jnp.maximum(cost, jnp.finfo(dtype).tiny))
+                              | (jnp.max(jnp.abs(delta)) <= xtol))
         mu_acc = mu * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(rho, 0.0, 1.0) - 1.0) ** 3)
         mu, nu = (jnp.where(accept, jnp.maximum(mu_acc, 1e-9), jnp.minimum(mu * nu, 1e9)),
                   jnp.where(accept, 2.0, 2.0 * nu))
-        return (pick(q_new, q), pick(lin_new, lin), (mu, nu), change, dx), None
+        return pick(q_new, q), pick(lin_new, lin), (mu, nu), converged, ~ok, k + 1
 
     damping = (jnp.asarray(1e-2, dtype), jnp.asarray(2.0, dtype))
-    start = (q0, lin0, damping, jnp.asarray(jnp.inf, dtype), jnp.asarray(jnp.inf, dtype))
-    (q, lin, _, change, dx), _ = jax.lax.scan(step, start, None, length=iterations)
-    return q, lin[0], change, dx
+    start = (q0, lin0, damping, jnp.asarray(False), jnp.asarray(False), jnp.asarray(0, jnp.int32))
+    q, lin, _, converged, _, k = eqxi.while_loop(lambda c: ~(c[3] | c[4]), step, start,
+                                                 max_steps=opts.iterations, kind="checkpointed")
+    return q, lin[0], converged, k
 
 
 @eqx.filter_jit
@@ -335,12 +325,11 @@ def _solve(robot: Robot, prob: RetargetProblem, opts: RetargetOptions):
     rng = robot.jnt_range.astype(dtype)[lay.scalar_joints] if lay.scalar_dofs.size else jnp.zeros((0, 2), dtype)
     frames = _frames(prob, opts, dtype)
     q = jax.vmap(lambda q: _retract(lay, rng, q, jnp.zeros(robot.nv, dtype)))(_initial(robot, prob, dtype))
-    q, cost, change, dx = _iterate(robot, prob, lay, rng, q, frames, opts, opts.iterations, dtype)
+    q, cost, converged, steps = _iterate(robot, prob, lay, rng, q, frames, opts, dtype)
     finite = jnp.all(jnp.isfinite(q)) & jnp.isfinite(cost)
-    converged = (change <= opts.rtol.astype(dtype)) | (dx <= opts.xtol.astype(dtype))
     result = solvers.RESULTS.where(~finite, solvers.RESULTS.nonfinite, solvers.RESULTS.where(
         converged, solvers.RESULTS.successful, solvers.RESULTS.max_steps_reached))
-    return q, cost, result, finite & converged
+    return q, cost, result, finite & converged, steps
 
 
 def solve_retarget(robot: Robot, problem: RetargetProblem, options: RetargetOptions | None = None) -> RetargetResult:
@@ -350,7 +339,7 @@ def solve_retarget(robot: Robot, problem: RetargetProblem, options: RetargetOpti
     options' weights.
     """
     options = RetargetOptions() if options is None else options
-    q, cost, result, success = _solve(robot, problem, options)
+    q, cost, result, success, steps = _solve(robot, problem, options)
     fps = 1.0 / problem.frame_time
     return RetargetResult(qpos=q, fps=fps, result=result, success=success, cost=cost,
-                          num_steps=jnp.asarray(options.iterations), diagnostics=diagnostics(robot, problem, q))
+                          num_steps=steps, diagnostics=diagnostics(robot, problem, q))
