@@ -173,8 +173,7 @@ def test_cmu_clip_onto_the_g1():
     skel, motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")
     robot = robots.load_robot(path)
     res = robots.retarget(skel, motion, robot, CMU_TO_G1)
-    # one swing frame (278) dips 1.05 mm: the README states it
-    summary = _check_clip(res, path, ("left_ankle_roll_link", "right_ankle_roll_link"), penetration=1.1e-3)
+    summary = _check_clip(res, path, ("left_ankle_roll_link", "right_ankle_roll_link"))
     assert summary["matching_error"] < 0.06
 
 
@@ -250,7 +249,7 @@ def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):
     from jaxanim.app import main
 
     out = tmp_path / "walk.npz"
-    assert main(["retarget", "--out", str(out), "--iterations", "30"]) == 0
+    assert main(["retarget", "--out", str(out), "--iterations", "50"]) == 0
     text = capsys.readouterr().out
     assert "foot slide" in text and "penetration" in text and "limit hits" in text and "matching error" in text
     with np.load(out) as f:

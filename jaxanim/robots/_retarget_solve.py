@@ -8,7 +8,7 @@ Cost (``s`` the scale, ``v_t = (q_{t+1} ⊖ q_t) / dt``, ``a_t = (v_t - v_{t-1})
 
     sum_t [ sum_k wp_k |p_k - p*_k|^2 + wo_k |log(R_k R*_k^T)|^2          matching (feet in stance: off)
           + w_plant (|p_f - anchor_f|^2 + |log(R_f A_f^T)|^2)            planted feet, stance frames
-          + w_ground sum_points softmin(z - radius, 0)^2                  no penetration
+          + w_ground sum_points ground(z)^2                               no penetration (_ground)
           + w_posture |q_joints - q0_joints|^2 ]                          posture prior
     + sum_t [ w_v |v_t|^2 + w_a |a_t|^2 + w_vmax |v_t - clip(v_t, -vmax, vmax)|_joints^2 ] dt ...
 
@@ -72,11 +72,11 @@ class RetargetOptions(eqx.Module):
         xtol: see ``rtol`` (rad or m).
     """
 
-    iterations: int = eqx.field(static=True, default=30)
+    iterations: int = eqx.field(static=True, default=50)
     velocity_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
     acceleration_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
     plant_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e3)
-    ground_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e3)
+    ground_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=3e3)
     posture_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-4)
     max_joint_velocity: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=20.0)
     velocity_limit_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-2)
@@ -110,9 +110,19 @@ class RetargetResult(eqx.Module):
 # --- one frame's residual ------------------------------------------------------------------------------
 
 
-#: The length (m) over which the ground term softens: ``-eps softplus(-h / eps)``, smooth where the
-#: foot point touches the ground (``h = 0``), ``h`` well below it, and about 0 well above it.
-_GROUND_SOFTNESS = 2e-3
+#: The length (m) over which the ground term softens (:func:`_ground`): exactly 0 a millimetre above the
+#: ground, the depth itself a millimetre below, smooth between.
+_GROUND_SOFTNESS = 1e-3
+
+
+def _ground(h, eps):
+    """The ground residual of a point at height ``h`` and its derivative: ``h`` below ``-eps``, 0 above
+    ``eps`` and ``-(eps - h)^2 / (4 eps)`` between (continuous with its slope): a point on the ground
+    costs ``eps / 4`` of height, one above ``eps`` nothing."""
+    mid = jnp.clip(h, -eps, eps)
+    r = jnp.where(h <= -eps, h, jnp.where(h >= eps, 0.0, -((eps - mid) ** 2) / (4 * eps)))
+    slope = jnp.where(h <= -eps, 1.0, jnp.where(h >= eps, 0.0, (eps - mid) / (2 * eps)))
+    return r, slope
 
 
 def _sqrt(w):
@@ -152,7 +162,7 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
     owner = np.asarray([f for f, idx in enumerate(prob.foot_points) for _ in idx])
     sg = _sqrt(fr.w_ground)[owner]
     soft = _GROUND_SOFTNESS
-    ground = -soft * jax.nn.softplus(-height / soft)
+    ground, slope = _ground(height, soft)
     posture = q[lay.joint_q] - robot.qpos0.astype(dtype)[lay.joint_q]
     r = jnp.concatenate([
         (sp * (points - fr.p)).ravel(), (so * e_match).ravel(),
@@ -169,7 +179,7 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
     J = jnp.concatenate([
         (sp[:, :, None] * jacp).reshape(-1, robot.nv), (so[:, :, None] * Jo).reshape(-1, robot.nv),
         (spl[:, :, None] * jacp[np.asarray(feet)]).reshape(-1, robot.nv), (spl[:, :, None] * Jpl).reshape(-1, robot.nv),
-        (sg * jax.nn.sigmoid(-height / soft))[:, None] * jz])
+        (sg * slope)[:, None] * jz])
     return r, J, posture
 
 
@@ -311,7 +321,7 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
                   jnp.where(accept, 2.0, 2.0 * nu))
         return pick(q_new, q), pick(lin_new, lin), (mu, nu), converged, ~ok, k + 1
 
-    damping = (jnp.asarray(1e-2, dtype), jnp.asarray(2.0, dtype))
+    damping = (jnp.asarray(1e-4, dtype), jnp.asarray(2.0, dtype))  # mu relative to J'J's diagonal
     start = (q0, lin0, damping, jnp.asarray(False), jnp.asarray(False), jnp.asarray(0, jnp.int32))
     q, lin, _, converged, _, k = eqxi.while_loop(lambda c: ~(c[3] | c[4]), step, start,
                                                  max_steps=opts.iterations, kind="checkpointed")
