@@ -392,6 +392,35 @@ def test_frozen_base_stays_with_joint_weights_on_ball_slide_and_hinge():
     assert -0.2 <= float(sol.qpos[11]) <= 0.3 and -1 <= float(sol.qpos[13]) <= 1, "slide / knee range"
 
 
+_CONE = """<mujoco><compiler angle="radian"/><worldbody>
+<body name="arm"><joint name="shoulder" type="ball" range="0 0.5"/><geom type="capsule" fromto="0 0 0 0.5 0 0" size=".02"/>
+ <site name="tip" pos="0.5 0 0"/></body></worldbody></mujoco>"""
+
+
+def test_a_target_outside_a_ball_cone_puts_the_ball_on_the_cone():
+    """MuJoCo's ball range (rotation angle <= 0.5 rad): a tip target 1.2 rad away about z is reached as
+    far as the cone allows, analytically the 0.5 rad rotation about z; the Jacobian of the projection is
+    jacfwd's where the cone is active."""
+    from jaxanim.robots import _ik
+
+    robot = robots.robot_from_mujoco(mujoco.MjModel.from_xml_string(_CONE))
+    goal = (ik.Target("tip", 0.5 * np.array([np.cos(1.2), np.sin(1.2), 0.0])),)
+    sol = robots.solve_ik_robot(robot, goal, robot.qpos0, stop_at_tolerance=False)
+    q = np.asarray(sol.qpos)
+    angle = 2 * np.arctan2(np.linalg.norm(q[1:]), abs(q[0]))  # MuJoCo's ball angle
+    assert abs(angle - 0.5) <= 1e-9
+    tip = np.asarray(robots.forward_kinematics(robot, sol.qpos).site_xpos[0])
+    np.testing.assert_allclose(tip, 0.5 * np.array([np.cos(0.5), np.sin(0.5), 0.0]), atol=1e-8)
+    targets = _ik._check_targets(robot, goal)
+    data = _ik._Data(robot, _ik._layout(robot, targets, ()), targets, robot.qpos0, None, jnp.asarray(1e-5),
+                     jnp.asarray(1e-4))
+    for y in ([0.3, -0.2, 0.9], [0.0, 0.0, 0.4], [1.5, 0.5, -2.0]):  # outside, inside, far outside
+        y = jnp.asarray(y)
+        J = _ik._residual(y, data)[1]
+        np.testing.assert_allclose(np.asarray(J), np.asarray(jax.jacfwd(lambda y: _ik._residual(y, data)[0])(y)),
+                                   atol=1e-12)
+
+
 # --- bad input -----------------------------------------------------------------------------------------
 
 

@@ -26,8 +26,10 @@ rotational joint after a ball in the same body, and a slide does not turn the fr
 
 Bounds. A limited hinge or slide (``jnt_limited``) bounds its coordinate to ``jnt_range`` as a box
 on ``y`` (``range - q_ref``) given to the solver, so every iterate is inside the range and the start
-is clipped into it. Ball joints' cone ranges are **not** enforced (the ball rotates freely);
-unlimited joints and free joints are unbounded.
+is clipped into it. A limited ball joint keeps MuJoCo's cone (its rotation from the identity at most
+``jnt_range[1]``): the map from ``y`` to ``qpos`` turns a rotation outside the cone back onto it about
+the same axis, with the exact derivative of that projection in the Jacobian (zero along the axis'
+angle, so the solver sees the cone's boundary as flat). Unlimited joints and free joints are unbounded.
 
 Compiling once. The structure (robot tree and names, target names and kinds, frozen joints,
 static solver settings, whether there is a regularizer) keys one ``eqx.filter_jit``-ed core;
@@ -54,6 +56,7 @@ from .._errors import JaxanimError, check_float, check_shape
 from .._types import Array, Float
 from ._kinematics import _check, _dof_columns, _kinematics, _mm, _plan, _target_frames, _targets
 from ._robot import Robot
+from ._tangent import _cone
 
 #: The default ``position_tolerance``: 10 micrometres (robots are in metres).
 _POSITION_TOLERANCE = 1e-5
@@ -94,6 +97,7 @@ class _Layout(eqx.Module):
     scalar_joints: tuple[int, ...] = eqx.field(static=True)  # ... their joints
     rot_vars: tuple[tuple[int, int, int], ...] = eqx.field(static=True)  # rotation blocks: positions in y
     rot_qadr: tuple[int, ...] = eqx.field(static=True)  # ... the first qpos slot of their quaternion
+    cones: tuple[int, ...] = eqx.field(static=True)  # ... the limited ball's joint (its cone), or -1
     bounded: bool = eqx.field(static=True)  # some variable is a limited hinge / slide
     bodies: tuple[int, ...] = eqx.field(static=True)  # per target: its body
     rows: tuple[int, ...] = eqx.field(static=True)  # per target: row in [xpos (bodies); site_xpos (sites)]
@@ -130,7 +134,7 @@ def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
             frozen_joints.add(robot.joint_index(name))
         except JaxanimError as e:
             raise JaxanimError(f"frozen: {e}") from None
-    var_dofs, scalar_vars, scalar_qadr, scalar_joints, rot_vars, rot_qadr = [], [], [], [], [], []
+    var_dofs, scalar_vars, scalar_qadr, scalar_joints, rot_vars, rot_qadr, cones = [], [], [], [], [], [], []
     for j, ty in enumerate(robot.jnt_types):
         if j in frozen_joints:
             continue
@@ -140,12 +144,14 @@ def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
             var_dofs += [d]
         elif ty == "ball":
             rot_vars, rot_qadr = rot_vars + [(k, k + 1, k + 2)], rot_qadr + [a]
+            cones.append(j if robot.jnt_limited[j] else -1)
             var_dofs += [d, d + 1, d + 2]
         else:  # free: translation (additive, world), then rotation (local)
             scalar_vars += [k, k + 1, k + 2]
             scalar_qadr += [a, a + 1, a + 2]
             scalar_joints += [j] * 3
             rot_vars, rot_qadr = rot_vars + [(k + 3, k + 4, k + 5)], rot_qadr + [a + 3]
+            cones.append(-1)
             var_dofs += list(range(d, d + 6))
     if not var_dofs:
         raise JaxanimError("frozen: every joint is frozen (or the robot has none): nothing can move")
@@ -160,7 +166,7 @@ def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
         rows += [r]
     return _Layout(
         tuple(var_dofs), tuple(scalar_vars), tuple(scalar_qadr), tuple(scalar_joints), tuple(rot_vars),
-        tuple(rot_qadr), bounded, tuple(bodies), tuple(rows),
+        tuple(rot_qadr), tuple(cones), bounded, tuple(bodies), tuple(rows),
         tuple(t.position is not None for t in targets), tuple(t.orientation is not None for t in targets),
     )
 
@@ -181,18 +187,29 @@ class _Data(eqx.Module):
 
 
 def _qpos(y, data: _Data):
-    """``(qpos [nq], delta [blocks, 3])`` of the variables ``y`` (limited coordinates clipped into their
-    range, which only removes rounding: the solver keeps ``y`` in the box)."""
+    """``(qpos [nq], J_rot [blocks, 3, 3])`` of the variables ``y``: limited coordinates clipped into their
+    range (which only removes rounding: the solver keeps ``y`` in the box), and a limited ball turned back
+    onto its cone where ``quat_ref ⊗ exp(delta)`` leaves it (:func:`_cone`). ``J_rot`` maps ``d delta`` to
+    each rotation block's local angular velocity: ``J_r(delta)``, times the cone's projection."""
     lay, q = data.layout, data.q_ref
     if lay.scalar_vars:
         qa = np.asarray(lay.scalar_qadr)
         rng = data.robot.jnt_range.astype(y.dtype)[np.asarray(lay.scalar_joints)]
         q = q.at[qa].set(jnp.clip(q[qa] + y[np.asarray(lay.scalar_vars)], rng[:, 0], rng[:, 1]))
     delta = y[np.asarray(lay.rot_vars, dtype=np.int32).reshape(-1, 3)]
+    J_rot = rot.right_jacobian(delta)
     if lay.rot_vars:
         qi = np.asarray(lay.rot_qadr)[:, None] + np.arange(4)
-        q = q.at[qi].set(rot.quat_multiply(q[qi], rot.rotvec_to_quat(delta)))
-    return q, delta
+        quat = rot.quat_multiply(q[qi], rot.rotvec_to_quat(delta))
+        limited = [b for b, j in enumerate(lay.cones) if j >= 0]
+        if limited:
+            ib = np.asarray(limited)
+            cone = data.robot.jnt_range.astype(y.dtype)[np.asarray([lay.cones[b] for b in limited]), 1]
+            clamped, P = _cone(quat[ib], cone)
+            quat = quat.at[ib].set(clamped)
+            J_rot = J_rot.at[ib].set(_mm(P, J_rot[ib]))
+        q = q.at[qi].set(quat)
+    return q, J_rot
 
 
 def _frames(robot: Robot, lay: _Layout, qpos, dtype):
@@ -203,13 +220,13 @@ def _frames(robot: Robot, lay: _Layout, qpos, dtype):
     return points, R, kin
 
 
-def _jacobian(robot: Robot, lay: _Layout, kin, points, delta, dtype):
+def _jacobian(robot: Robot, lay: _Layout, kin, points, J_rot, dtype):
     """``(jacp, jacr)`` ``[K, 3, n]``: the geometric Jacobian columns of the variables' dofs
-    (:func:`~jaxanim.robots.jacobian`'s), rotation blocks times ``J_r(delta)``."""
+    (:func:`~jaxanim.robots.jacobian`'s), rotation blocks times ``J_rot`` (:func:`_qpos`)."""
     jacp, jacr = _dof_columns(robot, kin, points, lay.bodies, lay.var_dofs, dtype)
-    if lay.rot_vars:  # column d of a rotation block <- sum_c column c J_r[c, d]
+    if lay.rot_vars:  # column d of a rotation block <- sum_c column c J_rot[c, d]
         cols = np.asarray(lay.rot_vars)  # [nb, 3]
-        Jr = rot.right_jacobian(delta)  # [nb, 3, 3]
+        Jr = J_rot  # [nb, 3, 3]
 
         def blocks(jac):
             blk = jac[:, cols, :]  # [K, nb, 3 (c), 3 (xyz)]
@@ -254,9 +271,9 @@ def _residual(y, data: _Data):
     """``(r [m], J [m, n])`` of one problem (the residual of ``least_squares(jac=True)``)."""
     dtype = y.dtype
     robot, lay = data.robot, data.layout
-    q, delta = _qpos(y, data)
+    q, J_rot = _qpos(y, data)
     points, R, kin = _frames(robot, lay, q, dtype)
-    jacp, jacr = _jacobian(robot, lay, kin, points, delta, dtype)
+    jacp, jacr = _jacobian(robot, lay, kin, points, J_rot, dtype)
     r, J = _errors_and_rows(lay, data.targets, points, R, jacp, jacr, dtype)
     if data.reg_w is not None:
         sqrt_w = jnp.sqrt(data.reg_w)
@@ -370,8 +387,8 @@ def solve_ik_robot(
     hinges and slides additive, a free joint's translation additive in the world frame, free and
     ball rotations ``quat_ref ⊗ exp(delta)`` with ``delta`` in the body frame, as MuJoCo's
     velocities), with the exact Jacobian and a bounded solver: every iterate keeps each limited hinge
-    and slide inside ``jnt_range`` (the start is clipped into it). **Ball joint ranges (cones) are not
-    enforced.** Compiled once per structure (robot, target names and kinds, ``frozen``, static solver
+    and slide inside ``jnt_range`` (the start is clipped into it) and each limited ball inside its cone
+    (MuJoCo's: the rotation angle at most ``jnt_range[1]``). Compiled once per structure (robot, target names and kinds, ``frozen``, static solver
     settings, whether ``regularization`` is the literal 0): new targets, ``qpos``, ``reference``,
     weights or tolerances reuse it.
 

@@ -35,7 +35,8 @@ class RetargetDiagnostics(eqx.Module):
             frame and the next), m/s; 0 elsewhere.
         foot_height: ``[T, F]`` height of each foot's lowest surface point above the ground, m.
         penetration: ``[T, F]`` depth of that point below the ground, m (0 above).
-        range_violation: ``[T]`` the largest distance of a limited coordinate outside its range.
+        range_violation: ``[T]`` the largest distance of a limited coordinate outside its range (of a
+            limited ball: its angle beyond its cone).
         limit_hits: ``[T]`` how many limited coordinates sit on a bound.
         joint_speed: ``[T]`` the largest hinge / slide speed, rad/s or m/s.
         jitter: ``[T]`` the mean |acceleration| of the hinges and slides, rad/s^2.
@@ -89,6 +90,11 @@ def diagnostics(robot: Robot, problem: RetargetProblem, qpos: Float[Array, "T nq
         hits = jnp.sum((x <= lo + LIMIT_HIT) | (x >= hi - LIMIT_HIT), axis=1)
     else:
         violation, hits = jnp.zeros(prob.num_frames, dtype), jnp.zeros(prob.num_frames, jnp.int32)
+    if lay.cone_blocks.size:  # limited balls: MuJoCo's angle from the identity against jnt_range[:, 1]
+        qi = lay.rot_q[lay.cone_blocks][:, None] + np.arange(4)
+        angle = jnp.linalg.norm(rot.quat_to_rotvec(qpos[:, qi]), axis=-1)
+        over = jnp.max(jnp.maximum(angle - robot.jnt_range.astype(dtype)[lay.cone_joints, 1][None], 0.0), axis=1)
+        violation = jnp.maximum(violation, over)
     valid_pair = (mask[:-1] & mask[1:])[:, None]
     v = jnp.where(valid_pair, _difference(lay, qpos[:-1], qpos[1:]) * fps, 0.0)[:, lay.joint_dofs]
     joint_speed = jnp.concatenate([jnp.max(jnp.abs(v), axis=1, initial=0.0), jnp.zeros(1, dtype)])

@@ -295,6 +295,7 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
     The loop is equinox's checkpointed ``while_loop``: it stops early (under ``vmap``, when every
     clip has converged) and still has a reverse-mode derivative."""
     lin0 = _linearize(robot, prob, lay, q0, frames, opts)
+    cones = robot.jnt_range.astype(dtype)[lay.cone_joints, 1]
     rtol, xtol = opts.rtol.astype(dtype), opts.xtol.astype(dtype)
 
     def step(carry):
@@ -305,7 +306,7 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
         H, e1, e2, g, damp = _normal_equations(JtJ, g, c, a, free, mu)
         delta, ok = solvers.block_pentadiagonal_solve(H, e1, e2, -g)
         delta = jnp.where(ok, delta, 0.0)
-        q_new = jax.vmap(lambda qt, dt: _retract(lay, rng, qt, dt))(q, delta)
+        q_new = jax.vmap(lambda qt, dt: _retract(lay, rng, qt, dt, cones))(q, delta)
         lin_new = _linearize(robot, prob, lay, q_new, frames, opts)
         # Nielsen's damping update from the gain ratio: actual over the linear model's predicted decrease
         predicted = 0.5 * (jnp.sum(damp * delta**2) - jnp.sum(g * delta))
@@ -334,7 +335,8 @@ def _solve(robot: Robot, prob: RetargetProblem, opts: RetargetOptions):
     lay = _Layout(robot)
     rng = robot.jnt_range.astype(dtype)[lay.scalar_joints] if lay.scalar_dofs.size else jnp.zeros((0, 2), dtype)
     frames = _frames(prob, opts, dtype)
-    q = jax.vmap(lambda q: _retract(lay, rng, q, jnp.zeros(robot.nv, dtype)))(_initial(robot, prob, dtype))
+    cones = robot.jnt_range.astype(dtype)[lay.cone_joints, 1]
+    q = jax.vmap(lambda q: _retract(lay, rng, q, jnp.zeros(robot.nv, dtype), cones))(_initial(robot, prob, dtype))
     q, cost, converged, steps = _iterate(robot, prob, lay, rng, q, frames, opts, dtype)
     finite = jnp.all(jnp.isfinite(q)) & jnp.isfinite(cost)
     result = solvers.RESULTS.where(~finite, solvers.RESULTS.nonfinite, solvers.RESULTS.where(

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import rotations as rot
+from ._kinematics import _mm
 from ._robot import Robot
 
 
@@ -34,15 +35,24 @@ class _Layout:
         self.rot_q = np.asarray(rot_q, int)
         self.joint_dofs, self.joint_q = np.asarray(joint_dofs, int), np.asarray(joint_q, int)
         self.bounded = np.asarray([robot.jnt_limited[j] for j in scalar_j], bool)
+        # limited balls: their rotation block and joint (MuJoCo's cone, jnt_range[j, 1])
+        balls = [(b, j) for b, j in enumerate(j for j, ty in enumerate(robot.jnt_types) if ty in ("ball", "free"))
+                 if robot.jnt_types[j] == "ball" and robot.jnt_limited[j]]
+        self.cone_blocks = np.asarray([b for b, _ in balls], int)
+        self.cone_joints = np.asarray([j for _, j in balls], int)
 
 
-def _retract(lay: _Layout, rng, q, delta):
-    """``q ⊕ delta``, hinges and slides clipped into ``rng`` ``[scalars, 2]``."""
+def _retract(lay: _Layout, rng, q, delta, cones=None):
+    """``q ⊕ delta``, hinges and slides clipped into ``rng`` ``[scalars, 2]`` and limited balls brought
+    back onto their cones (``cones``: ``jnt_range[:, 1]`` of ``lay.cone_joints``)."""
     if lay.scalar_dofs.size:
         q = q.at[lay.scalar_q].set(jnp.clip(q[lay.scalar_q] + delta[lay.scalar_dofs], rng[:, 0], rng[:, 1]))
     if lay.rot_q.size:
         qi = lay.rot_q[:, None] + np.arange(4)
-        q = q.at[qi].set(rot.quat_normalize(rot.quat_multiply(q[qi], rot.rotvec_to_quat(delta[lay.rot_dofs]))))
+        quat = rot.quat_normalize(rot.quat_multiply(q[qi], rot.rotvec_to_quat(delta[lay.rot_dofs])))
+        if lay.cone_blocks.size and cones is not None:
+            quat = quat.at[lay.cone_blocks].set(_cone(quat[lay.cone_blocks], cones)[0])
+        q = q.at[qi].set(quat)
     return q
 
 
@@ -65,3 +75,23 @@ def _free_joint(robot: Robot, body: int) -> int | None:
                 return j
         body = robot.body_parents[body]
     return None
+
+
+def _cone(quat, angle):
+    """MuJoCo's ball range: a rotation of more than ``angle`` (rad, from the identity) is brought back to
+    ``angle`` about the same axis. Returns ``(quat, P)``, ``P [.., 3, 3]`` the map from the local angular
+    velocity before to after: ``J_r(v') s (I - u u') J_r(v)^{-1}`` with ``v`` the rotation vector,
+    ``v' = s v``, ``s = angle / |v|``, ``u = v / |v|`` (the identity where the rotation is inside)."""
+    v = rot.quat_to_rotvec(quat)
+    theta = jnp.linalg.norm(v, axis=-1)
+    out = theta > angle
+    safe = jnp.where(out, theta, 1.0)
+    scale = jnp.where(out, angle / safe, 1.0)
+    u = v / safe[..., None]
+    v2 = v * scale[..., None]
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=v.dtype), v.shape[:-1] + (3, 3))
+    radial = eye - u[..., :, None] * u[..., None, :]
+    Jr_inv = jnp.swapaxes(rot.left_jacobian_inverse(v), -1, -2)  # J_r(v)^{-1} = J_l(v)^{-T}
+    P = _mm(rot.right_jacobian(v2), _mm(scale[..., None, None] * radial, Jr_inv))
+    P = jnp.where(out[..., None, None], P, eye)
+    return jnp.where(out[..., None], rot.rotvec_to_quat(v2), quat), P
