@@ -358,13 +358,21 @@ def test_writer_prints_angles_in_half_open_range():
     assert format_bvh(*parse_bvh(text)) == text
 
 
-def test_writer_rejects_bad_input():
+def test_writer_rejects_bad_input(tmp_path):
     skeleton, motion = _small()
     with pytest.raises(JaxanimError, match="precision"):
         format_bvh(skeleton, motion, precision=-1)
     bad = Motion(motion.rotations, motion.translations.at[1, 0, 0].set(jnp.nan), motion.frame_time)
     with pytest.raises(JaxanimError, match="non-finite .* on frame 1"):
         format_bvh(skeleton, bad)
+    # a NaN or zero quaternion is named by frame and joint (it would have been written as some angle)
+    nan = Motion(motion.rotations.at[2, 3, 1].set(jnp.nan), motion.translations, motion.frame_time)
+    with pytest.raises(JaxanimError, match=f"non-finite rotation on frame 2, joint '{skeleton.names[3]}'"):
+        write_bvh(tmp_path / "nan.bvh", skeleton, nan)
+    assert not (tmp_path / "nan.bvh").exists()
+    zero = Motion(motion.rotations.at[0, 1].set(0.0), motion.translations, motion.frame_time)
+    with pytest.raises(JaxanimError, match=f"zero quaternion on frame 0, joint '{skeleton.names[1]}'"):
+        format_bvh(skeleton, zero)
     named = Skeleton(("Hips ",), (-1,), np.zeros((1, 3)))
     with pytest.raises(JaxanimError, match="cannot be written"):
         format_bvh(named, Motion(np.tile([1.0, 0, 0, 0], (1, 1, 1)), np.zeros((1, 1, 3)), 0.1))

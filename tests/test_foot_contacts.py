@@ -160,3 +160,10 @@ def test_bad_input(walk):
         clean_foot_contacts(skel, m, blend=-1)
     with pytest.raises(jaxanim.JaxanimError, match="height: expected a positive threshold"):
         detect_foot_contacts(skel, m, height=0.0)
+    nan = jaxanim.Motion(m.rotations.at[7, 4, 0].set(jnp.nan), m.translations, m.frame_time)
+    with pytest.raises(jaxanim.JaxanimError, match=r"motion: the clip has NaN or inf values in 1 frame\(s\), the first \[7\]"):
+        clean_foot_contacts(skel, nan)  # it reported success on the NaN frames
+    with pytest.raises(jaxanim.JaxanimError, match="motion: the clip has no frames"):
+        clean_foot_contacts(skel, jaxanim.Motion(m.rotations[:0], m.translations[:0], m.frame_time))
+    with pytest.raises(jaxanim.JaxanimError, match="motion: frame_time must be a positive number of seconds"):
+        clean_foot_contacts(skel, jaxanim.Motion(m.rotations, m.translations, -m.frame_time))

@@ -192,3 +192,8 @@ def test_bad_input():
         physics.make_model(bodies, model.joints, erp=1.5)
     with pytest.raises(JaxanimError, match="num_steps: expected a multiple of record_every"):
         physics.rollout(model, state, 0.01, 10, record_every=3)
+    for dt in (-0.01, 0.0, float("nan"), float("inf")):  # time backwards, or NaN in every state
+        with pytest.raises(JaxanimError, match="dt: expected a positive finite number of seconds"):
+            physics.step(model, state, dt)
+        with pytest.raises(JaxanimError, match="dt: expected a positive finite number of seconds"):
+            physics.rollout(model, state, dt, 10)

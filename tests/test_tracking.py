@@ -225,6 +225,9 @@ def test_bad_input(problem, result):
         tracking.TrackingOptions(samples=4, elites=8)
     short = tracking.tracking_reference(char, jaxanim.Motion(motion.rotations[:3], motion.translations[:3],
                                                              motion.frame_time))
+    nan = jaxanim.Motion(motion.rotations.at[2, 1, 0].set(jnp.nan), motion.translations, motion.frame_time)
+    with pytest.raises(jaxanim.JaxanimError, match=r"motion: the clip has NaN or inf values in 1 frame\(s\), the first \[2\]"):
+        tracking.tracking_reference(char, nan)  # samcon reported success on such a reference
     with pytest.raises(jaxanim.JaxanimError, match="too short for one control window of 3 frames"):
         tracking.samcon(char, short, jax.random.PRNGKey(0))
     with pytest.raises(jaxanim.JaxanimError, match=r"key: expected a jax.random key \(jax.random.PRNGKey\(seed\)"):
@@ -233,6 +236,12 @@ def test_bad_input(problem, result):
         tracking.samcon(char, ref, jnp.zeros(2))
     with pytest.raises(jaxanim.JaxanimError, match="feedback=True: the result has no feedback gains"):
         tracking.replay(char, ref, result, feedback=True)
+    for push, why in (((999, [1.0, 0, 0], 0.1, 0.1), "push: body 999 is not one of the character's"),
+                      ((1, [1.0, 0, 0], 0.1, -0.1), "push: duration must be a finite number of seconds >= 0"),
+                      ((1, [np.nan, 0, 0], 0.1, 0.1), "push: the force must be 3 finite numbers"),
+                      ((1, [1.0, 0, 0]), r"push: expected \(body, force \[3\], start, duration\)")):
+        with pytest.raises(jaxanim.JaxanimError, match=why):  # each would push nothing without a word
+            tracking.replay(char, ref, result, push=push)
     with pytest.raises(jaxanim.JaxanimError, match=re.escape("linearization B: expected shape (frames - 1, 12 bodies, 3 joints) = (60, 228, 54), got (60, 228, 3)")):
         tracking.feedback(char, ref, result, linearization=(jnp.zeros((60, 228, 228)), jnp.zeros((60, 228, 3))))
     with pytest.raises(jaxanim.JaxanimError, match="options: expected a FeedbackOptions"):

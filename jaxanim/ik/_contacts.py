@@ -125,9 +125,14 @@ def clean_foot_contacts(
         :class:`FootCleanup`.
 
     Raises:
-        JaxanimError: unknown foot names, ``contacts`` of the wrong shape, a negative ``blend``.
+        JaxanimError: unknown foot names, ``contacts`` of the wrong shape, a negative ``blend``, a clip
+            without frames, with NaN or inf values (naming the frames) or a frame time that is not
+            positive.
     """
     motion.check_skeleton(skeleton, "motion")
+    motion.check_finite("motion")
+    if motion.num_frames == 0:
+        raise JaxanimError("motion: the clip has no frames; there are no feet to plant")
     feet, idx = _feet(skeleton, feet, up)
     F = motion.num_frames
     dt = float(motion.frame_time)

@@ -15,7 +15,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from .._errors import JaxanimError
 from ._bodies import BodyState
 from ._model import PhysicsModel
-from ._step import _check_state, _control_for, _step
+from ._step import _check_dt, _check_state, _control_for, _step
 
 __all__ = ["Rollout", "SimResult", "rollout"]
 
@@ -124,6 +124,7 @@ def rollout(
     if num_steps % record_every:
         raise JaxanimError(f"num_steps: expected a multiple of record_every = {record_every}, got {num_steps}")
     _check_state(model, state)
+    _check_dt(dt)
     dtype = model.bodies.mass.dtype
     return _rollout(model, state, jnp.asarray(dt, dtype), int(num_steps), int(record_every), controller,
                     controller_args, jnp.asarray(max_speed, dtype), jnp.asarray(max_angular_speed, dtype))

@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import rotations as rot
+from .._errors import JaxanimError
 from ._bodies import BodyState, _check_loads, _free_velocities, _integrate
 from ._contact import contact_rows, penalty_loads, projected_gauss_seidel
 from ._control import Control, Servo, StablePD, _as_control
@@ -338,12 +339,25 @@ def step(
 
     Raises:
         JaxanimError: shapes do not match the model (the message names the argument and the
-            expected shape), a malformed ``spd`` / ``servo``, or both ``control`` and keywords.
+            expected shape), a malformed ``spd`` / ``servo``, both ``control`` and keywords, or a
+            ``dt`` that is not a positive finite number.
     """
     control = _control_for(model, control, force=force, torque=torque, joint_torque=joint_torque, spd=spd,
                            servo=servo)
     _check_state(model, state)
+    _check_dt(dt)
     return _step_jit(model, state, control, jnp.asarray(dt, model.bodies.mass.dtype))
+
+
+def _check_dt(dt) -> None:
+    """``dt`` a positive finite number of seconds, when it is known here (a traced ``dt``, under ``jit``
+    or ``vmap``, is the caller's to check): a negative or NaN step would run time backwards or fill the
+    state with NaN without a word."""
+    if isinstance(dt, jax.core.Tracer):
+        return
+    v = np.asarray(dt)
+    if v.shape != () or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v) or not v > 0:
+        raise JaxanimError(f"dt: expected a positive finite number of seconds, got {dt!r}")
 
 
 @eqx.filter_jit
@@ -360,5 +374,6 @@ def spd_torques(
     :func:`step` (the same checks and errors)."""
     control = _control_for(model, control, **keywords)
     _check_state(model, state)
+    _check_dt(dt)
     tau = _spd_torques_jit(model, state, control, jnp.asarray(dt, model.bodies.mass.dtype))
     return jnp.zeros((model.joints.num_joints, 3), model.bodies.mass.dtype) if tau is None else tau

@@ -171,15 +171,8 @@ def prepare_retarget(
     if not isinstance(skeleton, Skeleton) or not isinstance(motion, Motion):
         raise JaxanimError("skeleton, motion: expected a Skeleton and a Motion (jaxanim.read_bvh)")
     motion.check_skeleton(skeleton, "motion")
+    motion.check_finite("motion")
     T = motion.num_frames
-    bad = ~(np.all(np.isfinite(np.asarray(motion.rotations).reshape(T, -1)), axis=1)
-            & np.all(np.isfinite(np.asarray(motion.translations).reshape(T, -1)), axis=1))
-    if bad.any():
-        frames = np.flatnonzero(bad)
-        raise JaxanimError(f"motion: the clip has NaN or inf values in {len(frames)} frame(s), the first "
-                           f"{frames[:5].tolist()}; fix or cut those frames first")
-    if not np.isfinite(float(motion.frame_time)) or float(motion.frame_time) <= 0:
-        raise JaxanimError(f"motion: frame_time must be a positive number of seconds, got {float(motion.frame_time)}")
     full = _with_root(mapping)
     calib = calibrate(full, skeleton, robot) if calibration is None else calibration
     offsets = np.asarray(calib.offset, np.float64)

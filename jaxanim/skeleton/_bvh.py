@@ -185,6 +185,22 @@ def _check_name(name: str) -> None:
         )
 
 
+def _check_finite_motion(skeleton: Skeleton, motion: Motion) -> None:
+    """A non-finite or zero quaternion, or a non-finite translation, names its first frame and joint (the
+    conversion to Euler angles would otherwise write some angle for it)."""
+    for what, arr in (("rotation", motion.rotations), ("translation", motion.translations)):
+        a = np.asarray(arr, dtype=np.float64)
+        bad = ~np.isfinite(a).all(axis=-1)
+        if what == "rotation":
+            bad |= ~(np.linalg.norm(np.where(np.isfinite(a), a, 0.0), axis=-1) > 0)
+        if bad.any():
+            f, j = (int(i) for i in np.argwhere(bad)[0])
+            name = skeleton.names[j] if j < len(skeleton.names) else str(j)
+            kind = "a zero quaternion" if what == "rotation" and np.isfinite(a[f, j]).all() else f"a non-finite {what}"
+            raise JaxanimError(f"motion: {kind} on frame {f}, joint {name!r} ({int(bad.sum())} such values in all); "
+                               "cannot write it")
+
+
 def format_bvh(skeleton: Skeleton, motion: Motion, *, precision: int = 6) -> str:
     """Format a skeleton and clip as BVH text (the inverse of :func:`parse_bvh`).
 
@@ -214,7 +230,8 @@ def format_bvh(skeleton: Skeleton, motion: Motion, *, precision: int = 6) -> str
         raise JaxanimError(f"precision: expected an integer in [0, 17], got {precision!r}")
     for name in skeleton.names:
         _check_name(name)
-    values = np.array(motion_to_channels(skeleton, motion, degrees=True), dtype=np.float64)
+    values = np.array(motion_to_channels(skeleton, motion, degrees=True), dtype=np.float64)  # checks the shapes
+    _check_finite_motion(skeleton, motion)
     offsets = np.asarray(skeleton.offsets)
     end_offsets = np.asarray(skeleton.end_site_offsets)
     frame_time = np.asarray(motion.frame_time)

@@ -231,6 +231,22 @@ class Motion(eqx.Module):
     def root_translations(self) -> Float[Array, "frames 3"]:
         return self.translations[:, 0]
 
+    def check_finite(self, name: str = "motion") -> None:
+        """Raise :class:`JaxanimError` when a frame holds NaN or inf (naming the frames) or ``frame_time``
+        is not a positive finite number: for the algorithms that would otherwise report success on NaN."""
+        def finite(a):  # [T] every value of the frame finite (also for a clip of no frames)
+            a = np.asarray(a)
+            return np.all(np.isfinite(a.reshape(a.shape[0], int(np.prod(a.shape[1:])))), axis=1)
+
+        bad = ~(finite(self.rotations) & finite(self.translations))
+        if bad.any():
+            frames = np.flatnonzero(bad)
+            raise JaxanimError(f"{name}: the clip has NaN or inf values in {len(frames)} frame(s), the first "
+                               f"{frames[:5].tolist()}; fix or cut those frames first")
+        ft = np.asarray(self.frame_time, dtype=np.float64)
+        if ft.shape != () or not np.isfinite(ft) or ft <= 0:
+            raise JaxanimError(f"{name}: frame_time must be a positive number of seconds, got {ft}")
+
     def check_skeleton(self, skeleton: Skeleton, name: str = "motion") -> None:
         """Raise :class:`JaxanimError` unless this clip has one column per joint of ``skeleton``."""
         if self.num_joints != skeleton.num_joints:

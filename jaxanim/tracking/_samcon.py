@@ -158,9 +158,11 @@ def tracking_reference(character: Character, motion: Motion, *, ground_clip: boo
             are inside the feet, whose soles the character adds below them).
 
     Raises:
-        JaxanimError: fewer than 2 frames.
+        JaxanimError: fewer than 2 frames, NaN or inf in a frame (named), or a frame time that is not
+            positive (a search would otherwise report success on a NaN reference).
     """
     motion.check_skeleton(character.skeleton, "motion")
+    motion.check_finite("motion")
     if motion.num_frames < 2:
         raise JaxanimError(f"motion: expected at least 2 frames to track, got {motion.num_frames}")
     dt = float(motion.frame_time)
@@ -619,12 +621,15 @@ def replay(
         feedback too, since the state never leaves the trajectory the gains were made for).
 
     Raises:
-        JaxanimError: ``feedback=True`` for a result without gains.
+        JaxanimError: ``feedback=True`` for a result without gains, or a ``push`` whose body is not one
+            of the character's, whose force is not 3 finite numbers, or whose start or duration is
+            negative or not finite.
     """
     options, _ = _check(character, reference, result.options)
     dtype = reference.states.position.dtype
     # One program for every replay: no push is a zero force, no feedback zero gains (u = 0 exactly).
-    body, force, start, duration = (0, jnp.zeros(3, dtype), 0.0, 0.0) if push is None else push
+    body, force, start, duration = (0, jnp.zeros(3, dtype), 0.0, 0.0) if push is None else _check_push(
+        push, result.trajectory.position.shape[1])
     steps = options.steps_per_frame / float(reference.frame_time)
     push = (jnp.asarray(int(body)), jnp.asarray(force, dtype), jnp.asarray(round(float(start) * steps)),
             jnp.asarray(round(float(start + duration) * steps)))
@@ -643,6 +648,24 @@ def replay(
 
 
 _replay_jit = eqx.filter_jit(_replay)
+
+
+def _check_push(push, num_bodies: int):
+    """``(body, force [3], start, duration)`` checked in Python (a wrong body or a negative duration would
+    otherwise push nothing without a word)."""
+    if not isinstance(push, (tuple, list)) or len(push) != 4:
+        raise JaxanimError(f"push: expected (body, force [3], start, duration), got {push!r}")
+    body, force, start, duration = push
+    if isinstance(body, bool) or not isinstance(body, (int, np.integer)) or not 0 <= int(body) < num_bodies:
+        raise JaxanimError(f"push: body {body!r} is not one of the character's {num_bodies} bodies (0 to {num_bodies - 1})")
+    f = np.asarray(force, dtype=np.float64)
+    if f.shape != (3,) or not np.isfinite(f).all():
+        raise JaxanimError(f"push: the force must be 3 finite numbers (N, world), got {force!r}")
+    for name, value in (("start", start), ("duration", duration)):
+        v = np.asarray(value, dtype=np.float64)
+        if v.shape != () or not np.isfinite(v) or v < 0:
+            raise JaxanimError(f"push: {name} must be a finite number of seconds >= 0, got {value!r}")
+    return int(body), force, float(start), float(duration)
 
 
 def windows_of(reference: TrackingReference, options: TrackingOptions | None = None) -> int:
