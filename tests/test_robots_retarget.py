@@ -177,6 +177,61 @@ def test_cmu_clip_onto_the_g1():
     assert summary["matching_error"] < 0.06
 
 
+CMU_TO_CMU = {
+    "root": {"source": "Hips", "target": "body:root"},
+    "pairs": [
+        {"source": "LeftFoot", "target": "lfoot", "foot": True, "orientation_weight": 0.5},
+        {"source": "RightFoot", "target": "rfoot", "foot": True, "orientation_weight": 0.5},
+        {"source": "LeftLeg", "target": "ltibia", "orientation_weight": 0.0},
+        {"source": "RightLeg", "target": "rtibia", "orientation_weight": 0.0},
+        {"source": "Spine1", "target": "thorax", "orientation_weight": 0.5},
+        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.0},
+    ],
+}
+
+
+def _sole_tilt(model, data, body):
+    """The angle (rad) between the ground and the plane through the end points of ``body``'s capsules."""
+    points = []
+    for g in np.flatnonzero(model.geom_bodyid == body):
+        axis = data.geom_xmat[g].reshape(3, 3)[:, 2] * model.geom_size[g, 1]
+        points += [data.geom_xpos[g] - axis, data.geom_xpos[g] + axis]
+    points = np.asarray(points)
+    A = np.c_[points[:, :2] - points[:, :2].mean(0)]
+    slope = np.linalg.lstsq(A, points[:, 2] - points[:, 2].mean(), rcond=None)[0]
+    return np.arctan(np.linalg.norm(slope))
+
+
+def test_cmu_clip_onto_the_cmu_humanoid():
+    """dm_control's CMU humanoid faces -Y in its zero pose and splays its legs by 20 degrees, so its
+    soles are tilted there: the calibration turns the source to face the robot's way and plants the
+    soles level, with nothing in the map but names."""
+    path = shared_data_dir() / "robots" / "cmu_humanoid" / "humanoid_CMU.xml"
+    skel, motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")
+    robot = robots.load_robot(path)
+    cal = robots.calibrate(robots.load_mapping(CMU_TO_CMU), skel, robot)
+    np.testing.assert_allclose(np.asarray(cal.axes)[:, 2], [0.0, -1.0, 0.0], atol=1e-2)  # the source's +Z (facing): -Y
+    res = robots.retarget(skel, motion, robot, CMU_TO_CMU)
+    summary = _check_clip(res, path, ("lfoot", "rfoot"))
+    assert summary["matching_error"] < 0.05
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    feet = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in ("lfoot", "rfoot")]
+    assert min(_sole_tilt(model, data, b) for b in feet) > np.radians(15)  # the zero pose
+    contacts = np.asarray(res.diagnostics.contacts)
+    for f, body in enumerate(feet):
+        tilts = []
+        for q in np.asarray(res.qpos)[contacts[:, f]]:
+            data.qpos[:] = q
+            mujoco.mj_kinematics(model, data)
+            tilts.append(_sole_tilt(model, data, body))
+        assert np.median(tilts) < np.radians(5)
+
+
 TINY = """<mujoco model="tiny"><worldbody><body name="pelvis" pos="0 0 0.5"><freejoint/>
   <geom type="sphere" size="0.05"/>
   <body name="lthigh" pos="0 0.1 0"><joint name="lhip" axis="0 1 0" range="-1.5 1.5"/>

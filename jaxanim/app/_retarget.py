@@ -97,6 +97,6 @@ def add_retarget_parser(sub, common) -> None:
     p.add_argument("--map", metavar="MAP.json", help="the retargeting map (default: the shipped walk's)")
     p.add_argument("--out", "-o", default="retarget.npz", metavar="OUT.npz", help="output (default retarget.npz)")
     p.add_argument("--render", metavar="OUT.gif", help="also draw the robot beside its source (GIF or MP4)")
-    p.add_argument("--iterations", type=int, default=50, help="the most Levenberg-Marquardt iterations; the solve "
-                   "stops once converged (default 50)")
+    p.add_argument("--iterations", type=int, default=200, help="the most Levenberg-Marquardt iterations; the solve "
+                   "stops once converged (default 200)")
     p.set_defaults(func=_cmd_retarget)

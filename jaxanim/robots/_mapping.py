@@ -11,15 +11,18 @@ The JSON contract (issue 30)::
 Each pair may give ``position_weight`` (default 1), ``orientation_weight`` (default 0.1; 0: the
 pair matches the position only) and ``offset``; ``foot`` marks the pairs whose stance is planted.
 Everything else is computed by :func:`calibrate`: the source's world axes in the robot's
-(``source_up``: a Y-up source faces +Z with +X on its left, as BVH clips do; it is turned so that
-it faces the robot's +X with +Y on its left, Z up, MuJoCo's convention; a Z-up source is taken as
-it is), the human-to-robot ``scale`` and each pair's rotation ``offset`` from the source's rest
-pose and the robot's zero pose (``qpos0``): with ``C`` the axes' rotation, a source joint's world
-rotation ``R`` drives its target's as ``C R offset``, so ``offset = (C R_rest)^T R_zero``.
+(``source_up``: a Y-up source's Y becomes the robot's Z, a Z-up source keeps its axes; then the
+source is turned about up so that its pairs, seen from above, line up with the robot's in the zero
+pose: the least-squares turn of each pair's horizontal offset from the root, so a robot that faces
+-Y at ``qpos0``, as dm_control's CMU humanoid does, needs no more than one that faces +X), the
+human-to-robot ``scale`` and each pair's rotation ``offset`` from the source's rest pose and the
+robot's zero pose (``qpos0``): with ``C`` the axes' rotation, a source joint's world rotation ``R``
+drives its target's as ``C R offset``, so ``offset = (C R_rest)^T R_zero``.
 
 ``scale: "auto"`` is the ratio of the two stances' heights, each the root's height above the
-lowest foot pair along up: for a robot whose zero pose stands straight (the G1 and the CMU
-humanoids do), the ratio of leg lengths.
+lowest foot pair along up: for a robot whose zero pose stands straight (the G1 does), the ratio of
+leg lengths; a little less where the zero pose splays the legs (dm_control's CMU humanoid, by 20
+degrees).
 """
 
 from __future__ import annotations
@@ -32,12 +35,13 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError
 from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Skeleton
-from ._kinematics import _targets, forward_kinematics
+from ._kinematics import _kinematics, _surface, _target_frames, _targets, forward_kinematics
 from ._robot import Robot
 
 __all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping"]
@@ -196,6 +200,57 @@ def _target_row(robot: Robot, where: str, name: str) -> int:
         raise JaxanimError(f"mapping: {where}: {message.removeprefix('names: ')}") from None
 
 
+def _heading(p_src, src_root, src, p_rob, rob_root, rob) -> np.ndarray:
+    """``[3, 3]`` the turn about up that lines the source's pairs up with the robot's, seen from above:
+    the angle that best maps each pair's horizontal offset from the root in the rest pose onto the
+    same pair's in the zero pose (least squares, Kabsch's in the plane). A map whose pairs mirror each
+    other left to right, on a source and a robot that face the same way, gives exactly no turn."""
+    a = p_src[src, :2] - p_src[src_root, :2]
+    b = p_rob[rob, :2] - p_rob[rob_root, :2]
+    c, s = np.sum(a * b), np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    if np.hypot(c, s) == 0.0:
+        return np.eye(3)
+    angle = np.arctan2(s, c)
+    return np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+
+
+def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], ...], np.ndarray, np.ndarray]:
+    """Each foot target standing flat: ``(points, R [F, 3, 3], height [F])``.
+
+    ``points`` are the foot's surface points (its body's and its descendants', indices into
+    ``Robot.point_pos``). Flat is the zero pose's orientation of the target tilted by the least
+    rotation that levels the plane fitted through those points (their lowest surface, least squares):
+    a robot whose zero pose splays its legs, as dm_control's CMU humanoid does by 20 degrees, still
+    plants its soles flat, and one that stands on level soles (the G1) keeps its zero pose. ``height``
+    is the target's height above the lowest point of the levelled foot (m).
+    """
+    dtype = robot.qpos0.dtype
+    R_world, p_world, *_ = _kinematics(robot, robot.qpos0, dtype)
+    p_zero, R_zero = (np.asarray(x, np.float64) for x in _target_frames(robot, R_world, p_world, bodies, rows, dtype))
+    below = _tree.subtree(robot.body_parents)
+    points, flat, heights = [], [], []
+    for k, body in enumerate(bodies):
+        idx = tuple(i for i, b in enumerate(robot.point_bodies) if below[body, b])
+        if not idx:
+            raise JaxanimError(f"robot: the foot {robot.body_names[body]!r} has no collision geometry (sphere, capsule, "
+                               "box, cylinder or ellipsoid) on it or below it, so its sole and the ground cannot be "
+                               "found")
+        world, h = (np.asarray(x, np.float64) for x in _surface(robot, R_world, p_world, idx, dtype))
+        radius = world[:, 2] - h
+        xy = world[:, :2] - world[:, :2].mean(axis=0)
+        slope = np.linalg.lstsq(xy, h - h.mean(), rcond=1e-9)[0]
+        n = np.array([-slope[0], -slope[1], 1.0]) / np.hypot(np.hypot(*slope), 1.0)
+        level = np.eye(3)
+        if np.linalg.norm(slope) > 1e-12:  # the least rotation taking n onto +z
+            axis = np.cross(n, [0.0, 0.0, 1.0])
+            level = np.asarray(rot.rotvec_to_matrix(jnp.asarray(axis / np.linalg.norm(axis) * np.arccos(n[2]))))
+        levelled = (world - p_zero[k]) @ level.T  # about the target, which the levelling does not move
+        points.append(idx)
+        flat.append(level @ R_zero[k])
+        heights.append(-float(np.min(levelled[:, 2] - radius)))
+    return tuple(points), np.stack(flat) if flat else np.zeros((0, 3, 3)), np.asarray(heights)
+
+
 def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibration:
     """The axes, scale and rotation offsets of ``mapping`` for ``skeleton`` and ``robot``, from the
     skeleton's rest pose (identity rotations, OFFSETs) and the robot's zero pose (``qpos0``).
@@ -212,13 +267,14 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
     src_root = _source_index(skeleton, "root.source", mapping.root_source)
     tgt = [_target_row(robot, f"pairs[{i}].target", n) for i, n in enumerate(mapping.targets)]
     tgt_root = _target_row(robot, "root.target", mapping.root_target)
-    axes = _UP_AXES[mapping.source_up]
     rest = skeleton_fk(skeleton, skeleton.rest_rotations(), skeleton.offsets)
-    p_src = np.asarray(rest.positions, np.float64) @ axes.T  # in the robot's axes
-    R_src = axes @ np.asarray(rest.rotations, np.float64)
     zero = forward_kinematics(robot, robot.qpos0)
     p_rob = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])
     R_rob = np.concatenate([np.asarray(zero.xmat, np.float64), np.asarray(zero.site_xmat, np.float64)])
+    axes = _heading(np.asarray(rest.positions, np.float64) @ _UP_AXES[mapping.source_up].T, src_root, src,
+                    p_rob, tgt_root, tgt) @ _UP_AXES[mapping.source_up]
+    p_src = np.asarray(rest.positions, np.float64) @ axes.T  # in the robot's axes
+    R_src = axes @ np.asarray(rest.rotations, np.float64)
     heights = []
     for p, root, rows, what in ((p_src, src_root, src, "source rest pose"), (p_rob, tgt_root, tgt, "robot zero pose")):
         for i, foot in enumerate(mapping.feet):
@@ -229,12 +285,15 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
         heights.append(p[root, 2] - min(p[rows[i], 2] for i, foot in enumerate(mapping.feet) if foot))
     scale = heights[1] / heights[0] if mapping.auto_scale else float(mapping.scale)
     given = np.asarray(mapping.offset, np.float64)
+    feet = [i for i, foot in enumerate(mapping.feet) if foot]
+    R_pair = R_rob[tgt]
+    R_pair[feet] = _standing_feet(robot, _targets(robot, [mapping.targets[i] for i in feet])[0], [tgt[i] for i in feet])[1]
     offsets = []
     for i in range(mapping.num_pairs):
         if mapping.given_offsets[i]:
             offsets.append(given[i])
         else:
-            M = R_src[src[i]].T @ R_rob[tgt[i]]
+            M = R_src[src[i]].T @ R_pair[i]
             offsets.append(np.asarray(rot.quat_canonical(rot.matrix_to_quat(jnp.asarray(M)))))
     dtype = robot.qpos0.dtype
     return Calibration(axes=jnp.asarray(axes, dtype), scale=jnp.asarray(scale, dtype),

@@ -18,7 +18,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _tree
 from .. import rotations as rot
 from .._errors import JaxanimError
 from .._linalg import einsum
@@ -26,8 +25,8 @@ from .._types import Array, Bool, Float
 from ..kinematics._contacts import _runs, detect_foot_contacts
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
-from ._kinematics import _kinematics, _surface, _target_frames, _targets
-from ._mapping import Calibration, RetargetMap, calibrate, load_mapping
+from ._kinematics import _targets
+from ._mapping import Calibration, RetargetMap, _standing_feet, calibrate, load_mapping
 from ._robot import Robot
 from ._tangent import _free_joint
 
@@ -174,14 +173,14 @@ def prepare_retarget(
     motion.check_finite("motion")
     T = motion.num_frames
     full = _with_root(mapping)
+    bodies, rows = _targets(robot, full.targets)
+    _check_robot(robot, bodies[0])
     calib = calibrate(full, skeleton, robot) if calibration is None else calibration
     offsets = np.asarray(calib.offset, np.float64)
     if calibration is not None:  # a user's calibration has the pairs only: compute the root's
         if offsets.shape[0] != mapping.num_pairs:
             raise JaxanimError(f"calibration: expected offsets for the {mapping.num_pairs} pairs, got {offsets.shape[0]}")
         offsets = np.concatenate([np.asarray(calibrate(full, skeleton, robot).offset, np.float64)[:1], offsets])
-    bodies, rows = _targets(robot, full.targets)
-    _check_robot(robot, bodies[0])
     K = len(full.targets)
     length = T if length is None else int(length)
     if length < T:
@@ -203,24 +202,14 @@ def prepare_retarget(
     contacts = contacts.astype(bool)
     ground = P[:, feet_k, 2].min()
     P[..., 2] -= ground
-    # the robot's feet standing in the zero pose: height of each foot target above its lowest point
+    # the robot's feet standing flat: their orientation and the height of each foot target above its sole
     dtype = robot.qpos0.dtype
-    R_world, p_world, *_ = _kinematics(robot, robot.qpos0, dtype)
-    p_zero, R_zero = (np.asarray(x, np.float64) for x in _target_frames(robot, R_world, p_world, bodies, rows, dtype))
-    below = _tree.subtree(robot.body_parents)
-    foot_points, foot_height = [], []
-    for k in feet_k:
-        idx = tuple(i for i, b in enumerate(robot.point_bodies) if below[bodies[k], b])
-        if not idx:
-            raise JaxanimError(f"robot: the foot {full.targets[k]!r} has no collision geometry (sphere, capsule, box, "
-                               "cylinder or ellipsoid) on it or below it, so its sole and the ground cannot be found")
-        foot_points.append(idx)
-        foot_height.append(p_zero[k, 2] - float(np.min(_surface(robot, R_world, p_world, idx, dtype)[1])))
+    foot_points, R_flat, foot_height = _standing_feet(robot, [bodies[k] for k in feet_k], [rows[k] for k in feet_k])
     anchors = np.zeros((T, len(feet_k), 2))
     anchor_R = np.broadcast_to(np.eye(3), (T, len(feet_k), 3, 3)).copy()
     stance_height = np.zeros(len(feet_k))
     for f, k in enumerate(feet_k):
-        R0 = R_zero[k]
+        R0 = R_flat[f]
         runs = _runs(contacts[:, f])
         for a, b in runs:
             anchors[a:b, f] = P[a:b, k, :2].mean(axis=0)

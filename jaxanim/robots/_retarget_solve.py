@@ -72,7 +72,7 @@ class RetargetOptions(eqx.Module):
         xtol: see ``rtol`` (rad or m).
     """
 
-    iterations: int = eqx.field(static=True, default=50)
+    iterations: int = eqx.field(static=True, default=200)
     velocity_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
     acceleration_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
     plant_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e3)
@@ -267,15 +267,20 @@ def _linearize(robot, prob, lay, q, frames, opts):
     return jnp.sum(local) + smooth, JtJ, Jtr, (c, o, a, acc)
 
 
-def _free(lay: _Layout, rng, q, g, dtype):
-    """``[T, nv]`` 1 for a coordinate that may move, 0 for one at a bound that its gradient pushes out."""
+def _free(lay: _Layout, rng, q, g, last, dtype):
+    """``[T, nv]`` 1 for a coordinate that may move, 0 for one at a bound that its gradient pushes out,
+    or that the last step computed at ``q`` (``last``; rejected, it is tried again) pushed out: the
+    projection onto the range would have cut that step short of the model's, so the next one is
+    solved with the coordinate held (a straight knee that the model would bend backwards to keep a
+    planted foot still otherwise costs a rejection and a damping increase each iteration)."""
     free = jnp.ones(g.shape, dtype)
     if lay.scalar_dofs.size and lay.bounded.any():
         d, qa = lay.scalar_dofs[lay.bounded], lay.scalar_q[lay.bounded]
         lo, hi = rng[lay.bounded, 0], rng[lay.bounded, 1]
         x = q[:, qa]
         eps = 1e-10 + 1e-9 * (hi - lo)
-        pinned = ((x <= (lo + eps)[None]) & (g[:, d] > 0)) | ((x >= (hi - eps)[None]) & (g[:, d] < 0))
+        pinned = (((x <= (lo + eps)[None]) & ((g[:, d] > 0) | (last[:, d] < 0)))
+                  | ((x >= (hi - eps)[None]) & ((g[:, d] < 0) | (last[:, d] > 0))))
         free = free.at[:, d].set(jnp.where(pinned, 0.0, 1.0))
     return free
 
@@ -299,10 +304,10 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
     rtol, xtol = opts.rtol.astype(dtype), opts.xtol.astype(dtype)
 
     def step(carry):
-        q, lin, (mu, nu), _, _, k = carry
+        q, lin, (mu, nu), last, _, _, k = carry
         cost, JtJ, Jtr, (c, o, a, acc) = lin
         g = _gradient(Jtr, c, o, a, acc)
-        free = _free(lay, rng, q, g, dtype)
+        free = _free(lay, rng, q, g, last, dtype)
         H, e1, e2, g, damp = _normal_equations(JtJ, g, c, a, free, mu)
         delta, ok = solvers.block_pentadiagonal_solve(H, e1, e2, -g)
         delta = jnp.where(ok, delta, 0.0)
@@ -320,11 +325,13 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
         mu_acc = mu * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(rho, 0.0, 1.0) - 1.0) ** 3)
         mu, nu = (jnp.where(accept, jnp.maximum(mu_acc, 1e-9), jnp.minimum(mu * nu, 1e9)),
                   jnp.where(accept, 2.0, 2.0 * nu))
-        return pick(q_new, q), pick(lin_new, lin), (mu, nu), converged, ~ok, k + 1
+        last = jnp.where(accept | (free > 0), delta, last)  # rejected: a held coordinate stays held
+        return pick(q_new, q), pick(lin_new, lin), (mu, nu), last, converged, ~ok, k + 1
 
     damping = (jnp.asarray(1e-4, dtype), jnp.asarray(2.0, dtype))  # mu relative to J'J's diagonal
-    start = (q0, lin0, damping, jnp.asarray(False), jnp.asarray(False), jnp.asarray(0, jnp.int32))
-    q, lin, _, converged, _, k = eqxi.while_loop(lambda c: ~(c[3] | c[4]), step, start,
+    start = (q0, lin0, damping, jnp.zeros_like(lin0[2]), jnp.asarray(False), jnp.asarray(False),
+             jnp.asarray(0, jnp.int32))
+    q, lin, _, _, converged, _, k = eqxi.while_loop(lambda c: ~(c[4] | c[5]), step, start,
                                                  max_steps=opts.iterations, kind="checkpointed")
     return q, lin[0], converged, k
 
