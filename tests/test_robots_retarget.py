@@ -216,7 +216,7 @@ def test_cmu_clip_onto_the_cmu_humanoid():
     np.testing.assert_allclose(np.asarray(cal.axes)[:, 2], [0.0, -1.0, 0.0], atol=1e-2)  # the source's +Z (facing): -Y
     res = robots.retarget(skel, motion, robot, CMU_TO_CMU)
     summary = _check_clip(res, path, ("lfoot", "rfoot"))
-    assert summary["matching_error"] < 0.05
+    assert summary["matching_error"] < 0.06
     model = mujoco.MjModel.from_xml_path(str(path))
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)

@@ -75,7 +75,7 @@ class RetargetOptions(eqx.Module):
     iterations: int = eqx.field(static=True, default=200)
     velocity_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
     acceleration_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-6)
-    plant_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e3)
+    plant_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=3e3)
     ground_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=3e3)
     posture_weight: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1e-4)
     max_joint_velocity: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=20.0)
@@ -293,6 +293,10 @@ def _initial(robot: Robot, prob: RetargetProblem, dtype):
     return q.at[:, a:a + 3].set(p).at[:, a + 3:a + 7].set(prob.orientations.astype(dtype)[:, 0])
 
 
+#: The most damping (relative to the diagonal) of a step that may end the iterations.
+_CONVERGED_DAMPING = 1e-3
+
+
 def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
     """Levenberg-Marquardt steps of the whole clip from ``q0`` until converged (``opts.rtol``,
     ``opts.xtol``), at most ``opts.iterations``; returns ``(q, cost, converged, steps)``.
@@ -320,8 +324,10 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
         accept = ok & jnp.isfinite(cost_new) & (actual > 0)
         rho = actual / jnp.maximum(predicted, jnp.finfo(dtype).tiny)
         pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(accept, x, y), a, b)  # noqa: E731
-        converged = accept & ((actual <= rtol * jnp.maximum(cost, jnp.finfo(dtype).tiny))
-                              | (jnp.max(jnp.abs(delta)) <= xtol))
+        # a step that large damping kept short says little about the optimum: only a nearly Gauss-Newton
+        # step counts (a clip once stopped with a foot 3 mm in the ground after a few rejections)
+        converged = accept & (mu <= _CONVERGED_DAMPING) & (
+            (actual <= rtol * jnp.maximum(cost, jnp.finfo(dtype).tiny)) | (jnp.max(jnp.abs(delta)) <= xtol))
         mu_acc = mu * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(rho, 0.0, 1.0) - 1.0) ** 3)
         mu, nu = (jnp.where(accept, jnp.maximum(mu_acc, 1e-9), jnp.minimum(mu * nu, 1e9)),
                   jnp.where(accept, 2.0, 2.0 * nu))
