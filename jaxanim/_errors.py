@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import jax
 import numpy as np
 
 
@@ -81,3 +82,30 @@ def check_float(name: str, x) -> None:
     dtype = getattr(x, "dtype", None)
     if dtype is not None and not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
         raise JaxanimError(f"{name}: expected a real floating-point array, got dtype {dtype}")
+
+
+def check_positive(name: str, x, *, zero: bool = False, units: str | None = None) -> None:
+    """Raise :class:`JaxanimError` unless every value of ``x`` is a finite number ``> 0`` (``>= 0`` with
+    ``zero=True``), when ``x`` is concrete: a traced ``x`` (under ``jit`` or ``vmap``) is the caller's
+    to check, so functions that call this still trace. ``None`` passes (an optional argument).
+
+    Args:
+        name: the argument's name, as the user wrote it.
+        x: a number or an array of them.
+        zero: accept 0 (gains, where 0 means off); otherwise 0 is refused (halflives, times).
+        units: shown in the message, e.g. ``"seconds"``.
+    """
+    if x is None or isinstance(x, jax.core.Tracer):
+        return
+    v = np.asarray(x)
+    if not (np.issubdtype(v.dtype, np.floating) or np.issubdtype(v.dtype, np.integer)):
+        return  # not a number: a dtype problem, for check_float
+    bad = ~np.isfinite(v) | ((v < 0) if zero else ~(v > 0))
+    if bad.any():
+        sign = "non-negative" if zero else "positive"
+        unit = f" ({units})" if units else ""
+        if v.ndim == 0:
+            raise JaxanimError(f"{name}: expected a {sign} finite number{unit}, got {v.item()!r}")
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise JaxanimError(f"{name}: expected {sign} finite values{unit}, got {v[first].item()!r} at index "
+                           f"{first[0] if len(first) == 1 else first}")

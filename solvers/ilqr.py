@@ -385,11 +385,11 @@ def _with_rollout_tangent_jvp(primals, tangents, *, rollout):
 def _solve_jit(problem, x0, us, args, options, throw):
     n = x0.shape[0]
     t0 = jnp.array(0)
-    out = eqx.filter_eval_shape(problem.dynamics, x0, us[0], t0, args)
+    out = _eval_callback("dynamics", problem.dynamics, x0, us, t0, args)
     if getattr(out, "shape", None) != (n,):
         got = _fmt(out.shape) if hasattr(out, "shape") else type(out).__name__
         raise ValueError(f"dynamics: expected dynamics(x, u, t, args) to return shape (n,) = ({n},), got {got}")
-    out = eqx.filter_eval_shape(problem.cost, x0, us[0], t0, args)
+    out = _eval_callback("cost", problem.cost, x0, us, t0, args)
     if getattr(out, "shape", None) != ():
         got = _fmt(out.shape) if hasattr(out, "shape") else type(out).__name__
         raise ValueError(f"cost: expected cost(x, u, t, args) to return a scalar, shape (), got {got}")
@@ -399,6 +399,19 @@ def _solve_jit(problem, x0, us, args, options, throw):
             got = _fmt(out.shape) if hasattr(out, "shape") else type(out).__name__
             raise ValueError(f"terminal_cost: expected terminal_cost(x, args) to return a scalar, shape (), got {got}")
     return _solve(problem, x0, us, args, options, throw)
+
+
+def _eval_callback(name, fn, x0, us, t0, args):
+    """The output shape of ``fn(x0, us[0], t0, args)``; a shape error inside it (most often a control
+    size ``m`` that is not the one the callback expects) raises a ValueError naming ``us_init``."""
+    try:
+        return eqx.filter_eval_shape(fn, x0, us[0], t0, args)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"us_init: {name}(x, u, t, args) failed on x0 of shape (n,) = {_fmt(x0.shape)} and us_init of shape "
+            f"(T, m) = {_fmt(us.shape)}: give us_init the control size m that {name} expects ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''})"
+        ) from exc
 
 
 def _check_bounds(bounds, m: int, dtype):

@@ -26,18 +26,29 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import rotations as rot
-from .._errors import JaxanimError
+from .._errors import JaxanimError, check_positive
 from ..physics._joints import Joints, joint_errors
 from ..physics._bodies import BodyState
 
 __all__ = ["joint_errors", "pd_force", "pd_joint_torques", "stable_pd_force"]
 
 
+def _check_gains(kp, kd) -> None:
+    """Gains ``>= 0`` when concrete: a negative one drives away from the target without a word."""
+    check_positive("kp", kp, zero=True)
+    check_positive("kd", kd, zero=True)
+
+
 def pd_force(
     x: Float[ArrayLike, "*batch"], v: Float[ArrayLike, "*batch"], target: Float[ArrayLike, "*batch"],
     kp: Float[ArrayLike, "*batch"], kd: Float[ArrayLike, "*batch"], target_velocity: Float[ArrayLike, "*batch"] = 0.0,
 ) -> Float[Array, "*batch"]:
-    """Explicit PD: ``k_p (target - x) + k_d (target_velocity - v)`` (broadcasts)."""
+    """Explicit PD: ``k_p (target - x) + k_d (target_velocity - v)`` (broadcasts).
+
+    Raises:
+        JaxanimError: a concrete negative or non-finite ``kp`` or ``kd`` (traced gains pass unchecked).
+    """
+    _check_gains(kp, kd)
     x, v, target, kp, kd, tv = (jnp.asarray(a) for a in (x, v, target, kp, kd, target_velocity))
     return kp * (target - x) + kd * (tv - v)
 
@@ -56,7 +67,11 @@ def stable_pd_force(
         dt: the step.
         form: ``"damping"`` (the notes' eq. 7.5: implicit damping) or ``"full"`` (Tan et al.
             2011: implicit position and damping).
+
+    Raises:
+        JaxanimError: an unknown ``form``, or a concrete negative or non-finite ``kp`` or ``kd``.
     """
+    _check_gains(kp, kd)
     x, v, target, kp, kd, m, h = (jnp.asarray(a) for a in (x, v, target, kp, kd, mass, dt))
     if form == "damping":
         return (kp * (target - x) - kd * v) / (1 + h * kd / m)
@@ -76,7 +91,12 @@ def pd_joint_torques(
     max_torque: Float[ArrayLike, " J"] | None = None,
 ) -> Float[Array, "J 3"]:
     """Explicit PD joint torques ``k_p e - k_d (omega_c - omega_p)`` (world frame, N m), clipped to
-    norm ``max_torque`` per joint if given (see :func:`joint_errors`)."""
+    norm ``max_torque`` per joint if given (see :func:`joint_errors`).
+
+    Raises:
+        JaxanimError: a concrete negative or non-finite ``kp`` or ``kd`` (traced gains pass unchecked).
+    """
+    _check_gains(kp, kd)
     targets = rot.quat_normalize(jnp.asarray(targets, state.position.dtype))
     e, w = joint_errors(joints, state, targets)
     tau = jnp.asarray(kp)[:, None] * e - jnp.asarray(kd)[:, None] * w

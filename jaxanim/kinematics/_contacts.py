@@ -102,8 +102,13 @@ def detect_foot_contacts(
 
     Returns:
         ``(feet, contacts)``: the foot names and a ``[frames, feet]`` bool NumPy array.
+
+    Raises:
+        JaxanimError: the clip does not match the skeleton, or its ``frame_time`` is not a positive
+            finite number (the speeds would be meaningless).
     """
     motion.check_skeleton(skeleton, "motion")
+    motion.check_frame_time("motion")
     feet, idx = _feet(skeleton, feet, up)
     P = np.asarray(_clip_positions(skeleton, motion))[:, idx]  # [F, feet, 3]
     return feet, _contacts(skeleton, idx, P, float(motion.frame_time), up, ground, height, speed)

@@ -44,7 +44,7 @@ import numpy as np
 from jax import lax
 
 from .. import rotations as rot
-from .._errors import JaxanimError, check_shape
+from .._errors import JaxanimError, check_positive, check_shape
 from .._linalg import HIGHEST, check_precision, dot
 from .._types import Array, Bool, Float, Int
 from ..skeleton._skeleton import Motion
@@ -151,6 +151,9 @@ class ControllerOptions(eqx.Module):
         chunk: rows per step of the search's scan (static).
         precision: of the search's distance product (static; see :func:`search`): ``"highest"``
             (default) or the fast ``"default"`` (TF32 for float32 on NVIDIA GPUs).
+
+    Raises:
+        JaxanimError: a concrete halflife that is not a positive finite number of seconds.
     """
 
     search_period: float = eqx.field(default=0.15, converter=jnp.asarray)
@@ -166,6 +169,12 @@ class ControllerOptions(eqx.Module):
     chunk: int = eqx.field(default=DEFAULT_CHUNK, static=True)
     precision: lax.Precision = eqx.field(default=HIGHEST, static=True,
                                          converter=lambda p: check_precision("precision", p))
+
+    def __check_init__(self):
+        # a negative halflife makes a spring grow without bound, zero divides by zero (checked when
+        # concrete: options built under jit or vmap are the caller's to check)
+        for name in ("velocity_halflife", "facing_halflife", "blend_halflife", "adjust_halflife"):
+            check_positive(name, getattr(self, name), units="seconds")
 
 
 class MatchResult(eqx.Module):

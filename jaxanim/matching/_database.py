@@ -141,7 +141,7 @@ def build_database(
 
     Raises:
         JaxanimError: no clips; a clip with the wrong joint count, a different skeleton or frame
-            time (naming the clip); an unknown foot or hand joint; no searchable frame (every clip
+            time, or a frame time that is not a positive number (naming the clip); an unknown foot or hand joint; no searchable frame (every clip
             shorter than the trajectory window).
     """
     options = FeatureOptions() if options is None else options
@@ -168,6 +168,7 @@ def build_database(
         if not isinstance(m, Motion):
             raise JaxanimError(f"{labels[i]}: expected a Motion, got {type(m).__name__}")
         m.check_skeleton(skeleton, labels[i])
+        m.check_frame_time(labels[i])
         if abs(float(m.frame_time) - dt) > 1e-6 * dt:
             raise JaxanimError(f"{labels[i]}: frame time {float(m.frame_time):g} s differs from {labels[0]}'s {dt:g} s "
                                "(resample the clips to one rate)")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 from .._errors import JaxanimError, check_shape
@@ -86,7 +87,15 @@ def _search(features, squared_norms, query, chunk: int, precision=HIGHEST):
     return best_i, jnp.maximum(best_d + qq, 0.0)
 
 
-_search_jit = jax.jit(_search, static_argnums=(3, 4))
+def _search_flagged(features, squared_norms, query, chunk: int, precision=HIGHEST):
+    """:func:`_search`, with ``(-1, nan)`` for a query holding NaN or inf (traced: no error can be
+    raised, and a NaN query would otherwise come back as row 0)."""
+    i, d = _search(features, squared_norms, query, chunk, precision)
+    finite = jnp.all(jnp.isfinite(query))
+    return jnp.where(finite, i, -1), jnp.where(finite, d, jnp.nan)
+
+
+_search_jit = jax.jit(_search_flagged, static_argnums=(3, 4))
 
 
 def search(db: MatchingDatabase, query: Float[Array, " features"], *, chunk: int = DEFAULT_CHUNK,
@@ -108,13 +117,19 @@ def search(db: MatchingDatabase, query: Float[Array, " features"], *, chunk: int
             that tie and the nearest may be missed). float64 databases are exact either way.
 
     Returns:
-        :class:`SearchResult` ``(index, distance)``: the row and its squared distance.
+        :class:`SearchResult` ``(index, distance)``: the row and its squared distance. A traced
+        ``query`` (under ``jit`` or ``vmap``) holding NaN or inf gives ``index = -1`` and
+        ``distance = nan``: no row, rather than a plausible one (check ``index >= 0``).
 
     Raises:
-        JaxanimError: if ``query`` does not have the database's feature count, or ``precision``
-            is not a precision.
+        JaxanimError: if ``query`` does not have the database's feature count, a concrete ``query``
+            holds NaN or inf, or ``precision`` is not a precision.
     """
     check_shape("query", query, (db.num_features,), what=f"(features,) = ({db.num_features},)")
+    if not isinstance(query, jax.core.Tracer) and not np.all(np.isfinite(host := np.asarray(query))):
+        bad = np.flatnonzero(~np.isfinite(host))
+        raise JaxanimError(f"query: expected finite values, got NaN or inf in {len(bad)} feature(s), the first "
+                           f"{bad[:5].tolist()}")
     if int(chunk) < 1:
         raise JaxanimError(f"chunk: expected a positive number of rows, got {chunk}")
     precision = check_precision("precision", precision)

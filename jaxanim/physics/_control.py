@@ -26,7 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import rotations as rot
-from .._errors import JaxanimError, check_shape
+from .._errors import JaxanimError, check_positive, check_shape
 
 __all__ = ["Control", "Servo", "StablePD"]
 
@@ -106,6 +106,9 @@ def _as_spd(spd, num_joints: int, dtype) -> StablePD:
         if not (isinstance(spd, (tuple, list)) and len(spd) in (3, 4)):
             raise JaxanimError(_SPD_FORM)
         spd = StablePD(*spd)
+    # a negative gain pushes a joint away from its target (checked when concrete, as torque_limit)
+    check_positive("spd kp", spd.kp, zero=True, units="N m / rad")
+    check_positive("spd kd", spd.kd, zero=True, units="N m s / rad")
     targets, kp, kd = (jnp.asarray(a, dtype) for a in (spd.targets, spd.kp, spd.kd))
     check_shape("spd targets", targets, (num_joints, 4), what=f"(J, 4) = ({num_joints}, 4)")
     gains = [_per_joint(f"spd {name}", g, num_joints) for name, g in (("kp", kp), ("kd", kd))]
@@ -141,6 +144,9 @@ def _as_servo(servo, num_bodies: int, dtype) -> Servo:
     orientation = rot.quat_normalize(jnp.asarray(servo.orientation, dtype))
     check_shape("servo position", position, (3,))
     check_shape("servo orientation", orientation, (4,))
+    for name, g in (("kp_linear", servo.kp_linear), ("kd_linear", servo.kd_linear), ("kp_angular", servo.kp_angular),
+                    ("kd_angular", servo.kd_angular)):
+        check_positive(f"servo {name}", g, zero=True)
     gains = (jnp.asarray(g, dtype) for g in (servo.kp_linear, servo.kd_linear, servo.kp_angular, servo.kd_angular))
     return Servo(int(servo.body), position, orientation, *gains)
 

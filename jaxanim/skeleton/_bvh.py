@@ -240,8 +240,7 @@ def format_bvh(skeleton: Skeleton, motion: Motion, *, precision: int = 6) -> str
         raise JaxanimError(f"motion: non-finite rotation or translation on frame {f}; cannot write it")
     if not (np.isfinite(offsets).all() and np.isfinite(end_offsets).all()):
         raise JaxanimError("skeleton: non-finite offsets or end_site_offsets; cannot write them")
-    if not (np.isfinite(frame_time) and frame_time > 0):
-        raise JaxanimError(f"motion.frame_time: expected a positive finite number, got {frame_time}")
+    motion.check_frame_time("motion")
 
     # Angles in (-180, 180]: a value that would print as -180.000... prints as 180.000... instead.
     lay = _layout(skeleton.channels)

@@ -60,6 +60,10 @@ def resample(motion: Motion, frame_time: float | None = None, *, fps: float | No
 
     Returns:
         The resampled :class:`Motion`.
+
+    Raises:
+        JaxanimError: not exactly one of ``frame_time`` / ``fps``, a new rate that is not a positive
+            finite number, or a clip whose own ``frame_time`` is not.
     """
     if (frame_time is None) == (fps is None):
         raise JaxanimError("resample: give exactly one of frame_time= or fps=")
@@ -68,6 +72,7 @@ def resample(motion: Motion, frame_time: float | None = None, *, fps: float | No
     new_dt = float(frame_time) if frame_time is not None else 1.0 / float(fps)
     if not (math.isfinite(new_dt) and new_dt > 0):
         raise JaxanimError(f"frame_time: expected a positive finite number, got {new_dt}")
+    motion.check_frame_time("motion")
     old_dt = float(motion.frame_time)
     ratio = new_dt / old_dt
     n = int(math.floor((motion.num_frames - 1) / ratio + 1e-9)) + 1

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import rotations as rot
-from .._errors import JaxanimError, check_shape
+from .._errors import JaxanimError, check_positive, check_shape
 from .._linalg import matmul
 from .._types import Array, ArrayLike, Float
 from ._skeleton import Motion
@@ -471,7 +471,12 @@ def decay_spring(
 
     Returns:
         ``(offset_t, velocity_t)`` in the broadcast shape.
+
+    Raises:
+        JaxanimError: a concrete ``halflife`` that is not a positive finite number (checked when it
+            is known: a traced one, under ``jit`` or ``vmap``, passes unchecked).
     """
+    check_positive("halflife", halflife, units="seconds")
     x, v, hl, t = (jnp.asarray(z) for z in (offset, velocity, halflife, t))
     dtype = jnp.result_type(x.dtype, v.dtype, hl.dtype, t.dtype, float)
     x, v, hl, t = jnp.broadcast_arrays(*(z.astype(dtype) for z in (x, v, hl, t)))

@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -243,6 +244,15 @@ class Motion(eqx.Module):
             frames = np.flatnonzero(bad)
             raise JaxanimError(f"{name}: the clip has NaN or inf values in {len(frames)} frame(s), the first "
                                f"{frames[:5].tolist()}; fix or cut those frames first")
+        self.check_frame_time(name)
+
+    def check_frame_time(self, name: str = "motion") -> None:
+        """Raise :class:`JaxanimError` unless ``frame_time`` is a positive finite number of seconds, when it
+        is concrete (a traced one, under ``jit`` or ``vmap``, is the caller's to check): the check of every
+        function that takes a clip and uses its frame time (a negative or zero one gave negative
+        velocities, an empty resample or a clip written with a nonsense rate, without a word)."""
+        if isinstance(self.frame_time, jax.core.Tracer):
+            return
         ft = np.asarray(self.frame_time, dtype=np.float64)
         if ft.shape != () or not np.isfinite(ft) or ft <= 0:
             raise JaxanimError(f"{name}: frame_time must be a positive number of seconds, got {ft}")

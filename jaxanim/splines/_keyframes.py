@@ -72,8 +72,8 @@ def interpolate_motion(
 
     Raises:
         JaxanimError: if ``motion`` is not a ``Motion`` or has fewer than 2 frames, ``times`` is not
-            ``(m,)``, ``key_times`` is not ``(frames,)`` or not strictly increasing, or a method is
-            unknown.
+            ``(m,)``, ``key_times`` is not ``(frames,)`` or not strictly increasing (without
+            ``key_times``: ``frame_time`` not a positive number), or a method is unknown.
     """
     if not isinstance(motion, Motion):
         raise JaxanimError(f"motion: expected a jaxanim Motion, got {type(motion).__name__}")
@@ -86,6 +86,7 @@ def interpolate_motion(
     dtype = motion.rotations.dtype
     times = _as_float_array("times", times).astype(dtype)
     if key_times is None:
+        motion.check_frame_time("motion")  # the knots k * frame_time must increase
         knots = jnp.arange(frames, dtype=dtype) * motion.frame_time.astype(dtype)
     else:
         check_shape("key_times", key_times, (frames,), what=f"(frames,) = ({frames},)")

@@ -43,7 +43,7 @@ from jaxtyping import Array, Bool, Float
 from solvers import RESULTS
 
 from .. import rotations as rot
-from .._errors import JaxanimError
+from .._errors import JaxanimError, check_positive
 from .._linalg import dot, matmul
 from ..character._build import Character, _clip_targets, root_body
 from ..physics._bodies import BodyState
@@ -112,6 +112,10 @@ class TrackingOptions(eqx.Module):
         _positive_int("lookahead", self.lookahead, 0)
         if self.elites > self.samples:
             raise JaxanimError(f"elites: expected at most samples = {self.samples}, got {self.elites}")
+        # checked when concrete (options swept under vmap are the caller's to check)
+        check_positive("sigma", self.sigma, zero=True, units="radians")
+        check_positive("kp", self.kp, zero=True, units="N m / rad")
+        check_positive("kd", self.kd, zero=True, units="N m s / rad")
 
 
 class TrackingReference(eqx.Module):
@@ -477,6 +481,12 @@ def _check(character, reference, options):
     options = TrackingOptions() if options is None else options
     if not isinstance(options, TrackingOptions):
         raise JaxanimError(f"options: expected a TrackingOptions, got {type(options).__name__}")
+    nj = character.model.joints.num_joints
+    for name in ("sigma", "kp", "kd", "torque_limit"):  # broadcast to [joints] inside: name a bad length here
+        shape = getattr(getattr(options, name), "shape", ())
+        if shape not in ((), (1,), (nj,)):
+            raise JaxanimError(f"options.{name}: expected a scalar or shape ({nj},) (one per physics joint), "
+                               f"got shape {tuple(shape)}")
     windows = windows_of(reference, options)
     if windows < 1:
         raise JaxanimError(
