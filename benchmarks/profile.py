@@ -313,8 +313,8 @@ KERNELS: tuple[Kernel, ...] = (
            "scalar loop over the batch with strided 3-element rows (no vector lanes), and most of the time is "
            "data movement (the split / concatenate of every level's parents and the reorder in and out of level "
            "order: the data-movement share above). The memory floor row of the fk section shows that reading and "
-           "writing the data once costs about a tenth of FK. A batch-minor formulation measured slower on this CPU "
-           "(1.2 µs / char at 4096, of which the transposes in and out cost 0.8)."),
+           "writing the data once costs a small fraction of FK. A batch-minor formulation measured slower on this "
+           "CPU, most of its time in the transposes in and out."),
     Kernel("FK (quaternions)", "float32", 4096, "fk: FK ≥ 2.5x the Pinocchio loop (float32)", _fk32,
            "The same program in float32: the kernels are the same scalar loops, so halving the bytes saves only "
            "the data-movement share."),
@@ -332,10 +332,11 @@ KERNELS: tuple[Kernel, ...] = (
            "optimistix's LevenbergMarquardt computes each damped step as the least-squares solution of the stacked "
            "[J; sqrt(lambda) I] (126 x 96) by lineax's dense QR (the geqrf / ormqr library calls above), where own "
            "LM solves the 30 x 30 system J D^-1 J' + lambda I by Cholesky (fewer residuals than variables). "
-           "Isolated, per problem: the QR 260 µs, a 96 x 96 normal-equation Cholesky 42 µs, the 30 x 30 Cholesky "
-           "8.6 µs. It also takes about 1.5x the iterations (its first step only evaluates the start; its trust "
-           "region rejects more steps). `linear_solver=lineax.Normal(lineax.Cholesky())`, which a user may pass, "
-           "measured only 14-25 % faster (it forms the damping block as a dense 96 x 96 product)."),
+           "Isolated, per problem, that QR costs several times a normal-equation Cholesky of the 96 unknowns, which "
+           "costs several times the 30 x 30 Cholesky. It also takes more iterations (its first step only evaluates "
+           "the start; its trust region rejects more steps). `linear_solver=lineax.Normal(lineax.Cholesky())`, "
+           "which a user may pass, measured only a little faster (it forms the damping block as a dense 96 x 96 "
+           "product)."),
     Kernel("retarget onto the G1 (per frame)", "float64", 32, "retarget: ≥ 5x mink's frames per second on 32 clips",
            _retarget,
            "Each Levenberg-Marquardt iteration linearizes every frame (the robot's kinematics, the Jacobians of the "
@@ -349,15 +350,15 @@ KERNELS: tuple[Kernel, ...] = (
            "Per iteration three scans over 200 knots (backward pass, adjoint gradient, line-search rollout), each "
            "knot tens of XLA instructions on 2- and 3-vectors: a call runs tens of thousands of instructions of "
            "tens of nanoseconds each (the counts above), where Crocoddyl runs straight C++; the time is the "
-           "per-instruction cost of the XLA:CPU runtime, not arithmetic (unrolling the scans 4-8x did not help: "
-           "~same run time, 2-4x the compile)."),
+           "per-instruction cost of the XLA:CPU runtime, not arithmetic (unrolling the scans did not help: the "
+           "same run time for a longer compile)."),
     Kernel("iLQR pendulum swing-up", "float64", 1024, "oc: batched DDP ≥ 10x Crocoddyl (pendulum)",
            _swing("pendulum"),
            "The backward and forward scans over the horizon on [lanes, 2] states: each knot is a handful of "
            "kernels over 128 lanes of 2-vectors, so launch overhead, not arithmetic, sets the time."),
     Kernel("iLQR cart-pole swing-up", "float64", 1024, "oc: batched DDP ≥ 10x Crocoddyl (cart-pole)",
            _swing("cart_pole", CART_POLE_PROFILED_STEPS),
-           f"As the pendulum's, with 4-vector states, and 330-490 iterations per problem (the profile runs the first "
+           f"As the pendulum's, with 4-vector states, and hundreds of iterations per problem (the profile runs the first "
            f"{CART_POLE_PROFILED_STEPS}: a trace of all of them does not fit in memory)."),
     Kernel("DARE 12x4", "float64", 1024, "oc-dare: ≥ 50x the scipy loop", _dare,
            "Each doubling step solves (I + G H) systems of 12x12: LAPACK getrf / trsm called per system (a "
