@@ -18,7 +18,7 @@ from jaxanim.app._simulate import _looped_motion
 from jaxanim.rotations._numpy import quat_mul as _qmul
 from jaxanim.rotations._numpy import quat_to_matrix as _qmat
 from jaxanim.skinning._mesh import bone_segments
-from jaxanim.skinning._skin import _frames_args, _frames_kernel
+from jaxanim.skinning._skin import skin_frames_args, _frames_kernel
 
 from .report import Row, Table, Target, sel
 from .timing import Runner
@@ -190,7 +190,7 @@ def _fill(config, table: Table, method: str, skel, motion, mesh, w, np_args, pf:
             return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
 
         fn = jax.jit(functools.partial(_frames_kernel, method=method, precision=check_precision("precision", precision)))
-        args = _frames_args(cast(skel), cast(motion), cast(mesh), cast(w), method)
+        args = skin_frames_args(cast(skel), cast(motion), cast(mesh), cast(w), method)
         out, tm, comp = run.jax(fn, *args)
         err = float(np.max(np.linalg.norm(np.asarray(out[:pf], np.float64) - reference(), axis=-1)))
         return run.row(_JAX[method] + ("" if precision == "highest" else f" (precision={precision!r})"), dtype, F, tm,

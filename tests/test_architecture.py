@@ -130,6 +130,35 @@ def test_the_cycle_check_finds_a_cycle():
     assert _cycle({"a": {"b"}, "b": set()}) is None
 
 
+def _private_names_from_other_units(package: str) -> list[str]:
+    """``file: name from module`` for each underscore name a file of one subpackage imports from a module of
+    another (its own modules and the package's top-level helpers are its to use)."""
+    out = []
+    for path, unit in _units(package).items():
+        module_parts = [package, *path.relative_to(REPO / package).with_suffix("").parts]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = module_parts[: len(module_parts) - node.level]
+                source = ".".join(base + ([node.module] if node.module else []))
+            else:
+                source = node.module or ""
+            parts = source.split(".")
+            other = (parts[0] == package and len(parts) >= 3 and (REPO / package / parts[1]).is_dir()
+                     and f"{package}.{parts[1]}" != unit)
+            if other:
+                out += [f"{path.relative_to(REPO)}: {a.name} from {source}" for a in node.names
+                        if a.name.startswith("_")]
+    return out
+
+
+def test_no_unit_imports_another_units_private_names():
+    """What one subpackage shares with another is a name without an underscore (its internal interface),
+    never a private one."""
+    assert _private_names_from_other_units("jaxanim") == []
+
+
 def test_solvers_never_imports_jaxanim():
     assert not any(v.startswith("jaxanim") for u, vs in _graph().items() if u.startswith("solvers") for v in vs)
 

@@ -115,7 +115,7 @@ def test_tracks_the_clip_with_stable_pd_and_the_root_force(cmu, tracked):
         targets = jax.vmap(lambda q, t: character.spd_targets(char, q, t))(motion.rotations, motion.translations)
         errors = jax.vmap(lambda s, f: jnp.linalg.norm(control.joint_errors(char.model.joints, s, targets[f])[0],
                                                        axis=-1))(trajectory, frames)
-        lowest = jax.vmap(lambda s: jnp.min(contact._geometry(char.model.ground, char.model.bodies, s)[2]))(trajectory)
+        lowest = jax.vmap(lambda s: jnp.min(contact.contact_geometry(char.model.ground, char.model.bodies, s)[2]))(trajectory)
         return errors, lowest
 
     errors, lowest = errors_and_lowest(char, motion, run.trajectory, frames)

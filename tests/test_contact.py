@@ -17,7 +17,7 @@ _SINK_TOL = 1e-3  # acceptance: a box at rest sinks less than 1 mm (complementar
 
 
 def _min_distance(model, state):
-    return jnp.min(contact._geometry(model.ground, model.bodies, state)[2])
+    return jnp.min(contact.contact_geometry(model.ground, model.bodies, state)[2])
 
 
 def _dropped_box(kind, dt, seconds=3.0):
@@ -83,7 +83,7 @@ def test_contact_points_of_each_shape():
     # A sphere resting on the plane touches it: distance 0.
     state = rigid.make_state(bodies, position=[[0, 5, 0], [1.0, 0.3, 0.0], [0, 5, 0]])
     g = contact.make_ground()
-    phi = contact._geometry(g, bodies, state)[2]
+    phi = contact.contact_geometry(g, bodies, state)[2]
     np.testing.assert_allclose(phi[8], 0.0, atol=1e-15)
 
 

@@ -18,7 +18,7 @@ import solvers
 from jaxanim import ik
 from jaxanim.ik import _problem
 from jaxanim import rotations as rot
-from jaxanim.limits import EulerLimit, SwingTwistLimit, _charts
+from jaxanim.limits import EulerLimit, SwingTwistLimit, limit_charts
 
 from .conftest import shared_data_dir
 from .helpers import jitted_fk, jitted_limit_violation, random_pose, shared_clip, small_skeleton
@@ -28,7 +28,7 @@ _VIOLATION_ATOL = 1e-12  # hard limits hold exactly up to round-off of the quate
 
 def _chart(skel, lim, hard):
     j = skel.index(lim.joint)
-    (group,) = _charts(skel, [lim], [j], [0], hard, jnp.float64)
+    (group,) = limit_charts(skel, [lim], [j], [0], hard, jnp.float64)
     return jax.tree.map(lambda x: x[0], group.chart)
 
 

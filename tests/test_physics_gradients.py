@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from jaxanim import physics
-from jaxanim.physics._contact import _geometry
+from jaxanim.physics._contact import contact_geometry
 
 _RTOL = 1e-5  # the bound on |grad - finite differences| / |finite differences|
 _EPS = 1e-6  # central-difference step on parameters of order 1
@@ -56,7 +56,7 @@ def _cost_fn(kind):
         x = traj.position[:, 0]
         value = (jnp.sum(x[:, 0] * jnp.linspace(0.5, 1.5, steps)) + jnp.sum(x[:, 2] ** 2) + jnp.sum(x[:, 1])
                  + jnp.sum(traj.angular_velocity[:, 0, 1]) + jnp.sum(traj.linear_velocity[-1, 0] ** 2))
-        phi = jax.vmap(lambda s: _geometry(model.ground, bodies, s)[2])(traj)
+        phi = jax.vmap(lambda s: contact_geometry(model.ground, bodies, s)[2])(traj)
         speed = jnp.linalg.norm(traj.linear_velocity[:, 0, jnp.array([0, 2])], axis=-1)
         return value, (jax.lax.stop_gradient(phi), jax.lax.stop_gradient(speed))
 

@@ -21,7 +21,7 @@ _R, _MASS = 0.1, 2.0
 def _step_and_torques(model, state, spd, h):
     """``(physics.step(model, state, h, spd=spd), physics.spd_torques(...))`` from one solve (the
     public pair would solve twice, doubling these tests' compile time)."""
-    return physics._step._step_and_torques(model, state, physics._step._control_for(model, spd=spd), h)
+    return physics._step.step_and_torques(model, state, physics._step.control_for(model, spd=spd), h)
 
 
 @functools.lru_cache(maxsize=None)

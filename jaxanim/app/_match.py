@@ -14,11 +14,11 @@ import numpy as np
 
 from .._errors import JaxanimError
 from ..ik import clean_foot_contacts
-from ..kinematics._contacts import _clip_positions
+from ..kinematics._contacts import clip_positions
 from ..skeleton._bvh import write_bvh
 from ..skeleton._clips import resample
 from ._common import _UI, _duration, _load, _num
-from ._simulate import _check_writable
+from ._simulate import _check_seconds, _check_writable
 
 _INPUT_FIELDS = ("velocity", "facing")
 
@@ -89,7 +89,7 @@ def _stance_speed(skeleton, motion, cleaned) -> float:
     """Median ground speed (file units per s) of the feet of ``cleaned`` over the frame steps where
     the foot is on the ground at both ends (0 without any)."""
     idx = [skeleton.index(f) for f in cleaned.feet]
-    P = np.asarray(_clip_positions(skeleton, motion))[:, idx][..., [0, 2]]
+    P = np.asarray(clip_positions(skeleton, motion))[:, idx][..., [0, 2]]
     v = np.linalg.norm(np.diff(P, axis=0), axis=-1) / float(motion.frame_time)
     c = np.asarray(cleaned.contacts)
     both = c[1:] & c[:-1]
@@ -99,8 +99,7 @@ def _stance_speed(skeleton, motion, cleaned) -> float:
 def _cmd_match(args: argparse.Namespace, ui: _UI) -> int:
     from .. import matching
 
-    if not (math.isfinite(args.seconds) and args.seconds > 0):
-        raise JaxanimError(f"--seconds: expected a positive finite number, got {args.seconds:g}")
+    _check_seconds(args.seconds)
     _check_writable("--out", args.out)
     inputs = read_input(args.input, dtype=args.dtype)
     clips = [_load(f, ui, args.dtype) for f in (args.files or [None])]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import pathlib
 import time
 
@@ -44,6 +45,10 @@ def _sim_plan(seconds: float, dt: float, frame_time: float) -> _SimPlan:
         raise JaxanimError(f"--seconds {seconds:g} is shorter than two frames of the clip at {_num(fps)} fps "
                            f"(use at least {_num(1.5 * frame_time)} s)")
     k = max(1, int(round(frame_time / dt)))
+    if (frames - 1) * k > MAX_STEPS:
+        raise JaxanimError(f"--dt {dt:g}: {seconds:g} s at that step is {(frames - 1) * k:,} physics steps, more "
+                           f"than {MAX_STEPS:,}: use a larger --dt (the frame time is {_num(frame_time)} s) or fewer "
+                           "--seconds")
     return _SimPlan(frames=frames, k=k, dt=frame_time / k, steps=(frames - 1) * k)
 
 
@@ -178,17 +183,37 @@ def _check_number(flag: str, value: float, *, zero_ok: bool = False) -> None:
                            f"got {value:g}")
 
 
+#: The longest ``--seconds`` of the commands that simulate or match (an hour): ``--seconds 1e9`` asked for
+#: hundreds of GiB, and the CLI writes every frame it computes.
+MAX_SECONDS = 3600.0
+#: The most physics steps of one ``simulate`` (``--dt 1e-9`` planned 166 million and hung).
+MAX_STEPS = 10_000_000
+
+
+def _check_seconds(value: float) -> None:
+    """``--seconds``: a positive finite number, at most :data:`MAX_SECONDS`."""
+    if not (math.isfinite(value) and 0 < value <= MAX_SECONDS):
+        raise JaxanimError(f"--seconds: expected a positive finite number, got {value:g} (at most "
+                           f"{MAX_SECONDS:g}: an hour)")
+
+
 def _check_writable(flag: str, path: str) -> None:
-    parent = pathlib.Path(path).resolve().parent
+    """Refuse an output path before any work: a folder, a missing or unwritable folder, an unwritable file."""
+    target = pathlib.Path(path)
+    parent = target.resolve().parent
+    if target.is_dir():
+        raise JaxanimError(f"{flag} {path}: cannot write it: it is a directory (give a file name)")
     if not parent.is_dir():
         raise JaxanimError(f"{flag} {path}: cannot write it: the directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK) or (target.exists() and not os.access(target, os.W_OK)):
+        raise JaxanimError(f"{flag} {path}: cannot write it: permission denied")
 
 
 def _cmd_simulate(args: argparse.Namespace, ui: _UI) -> int:
     if args.float32:
         raise JaxanimError("simulate: --float32 is not supported (the physics runs in float64)")
     if args.seconds is not None:
-        _check_number("--seconds", args.seconds)
+        _check_seconds(args.seconds)
     _check_number("--dt", args.dt)
     _check_number("--kp", args.kp, zero_ok=True)
     _check_number("--kd", args.kd, zero_ok=True)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._errors import JaxanimError
 from ..skinning import METHODS, Mesh, SkinWeights, capsule_mesh, check_weights, heuristic_weights, read_obj, write_obj
-from ..skinning._skin import _frames_args, _skin_frames
+from ..skinning._skin import skin_frames_args, skin_frames
 from ._common import _UI, _duration, _load, _ms, _save_npz
 from ._simulate import _check_writable
 
@@ -107,9 +107,9 @@ def _cmd_skin(args: argparse.Namespace, ui: _UI) -> int:
     prep_seconds = time.perf_counter() - t0
     F, V = motion.num_frames, mesh.num_vertices
     ui.progress(f"skinning {F} frames x {V} vertices ({args.method.upper()}, one batched call)")
-    dyn = _frames_args(sk, motion, mesh, weights, args.method)
+    dyn = skin_frames_args(sk, motion, mesh, weights, args.method)
     t0 = time.perf_counter()
-    compiled = _skin_frames.lower(*dyn, method=args.method).compile()
+    compiled = skin_frames.lower(*dyn, method=args.method).compile()
     compile_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     verts = np.asarray(jax.block_until_ready(compiled(*dyn)))

@@ -18,7 +18,7 @@ from .._errors import JaxanimError
 from ..skeleton._bvh import write_bvh
 from ..skeleton._skeleton import Motion
 from ._common import _UI, _Clip, _duration, _load, _num
-from ._simulate import _check_writable, _looped_motion
+from ._simulate import _check_seconds, _check_writable, _looped_motion
 
 _TRACK_CONTACTS = ("complementarity", "penalty")
 _PUSH_SECONDS = 0.2
@@ -45,8 +45,7 @@ def _progress(ui: _UI):
 def _cmd_track(args: argparse.Namespace, ui: _UI) -> int:
     if args.float32:
         raise JaxanimError("track: --float32 is not supported (the physics runs in float64)")
-    if not (math.isfinite(args.seconds) and args.seconds > 0):
-        raise JaxanimError(f"--seconds: expected a positive finite number, got {args.seconds:g}")
+    _check_seconds(args.seconds)
     if args.samples < 2:
         raise JaxanimError(f"--samples: expected at least 2 samples per window, got {args.samples}")
     if args.contact not in _TRACK_CONTACTS:

@@ -62,7 +62,7 @@ from .._errors import JaxanimError
 from .. import rotations as rot
 from ._build import Character, character_state, spd_targets
 from .._linalg import dot, matmul
-from ..physics._contact import _geometry, contact_points
+from ..physics._contact import contact_geometry, contact_points
 from ..kinematics._fk import forward_kinematics, global_to_local
 from ..physics._joints import Joints
 from ..physics._bodies import BodyState, RigidBodies, bodies_center_of_mass
@@ -344,7 +344,7 @@ def _standing_measures(character: Character, R, P, up, feet: tuple[int, ...]):
     qs, ts = global_to_local(character.skeleton, R, P)
     s = character_state(character, qs, ts)
     c, _ = bodies_center_of_mass(character.model.bodies, s)
-    _, _, phi, _ = _geometry(character.model.ground, character.model.bodies, s)
+    _, _, phi, _ = contact_geometry(character.model.ground, character.model.bodies, s)
     return qs, ts, _feet_center(s, feet, up) - c, phi
 
 

@@ -390,7 +390,7 @@ def spd_targets(character: Character, rotations: Float[Array, "joints 4"],
 
 
 @eqx.filter_jit
-def _clip_targets(character: Character, Q, T):
+def clip_targets(character: Character, Q, T):
     """Every frame's SPD targets and body states (one compiled call, not op by op)."""
     return (jax.vmap(lambda q, t: spd_targets(character, q, t))(Q, T),
             jax.vmap(lambda q, t: character_state(character, q, t))(Q, T))
@@ -467,7 +467,7 @@ def tracking_controller(
         per joint, ``root_kp``, ``root_kd``, ``root_angular_kp``, ``root_angular_kd``), so
         ``vmap`` can sweep the gains.
     """
-    targets, states = _clip_targets(character, motion.rotations, motion.translations)
+    targets, states = clip_targets(character, motion.rotations, motion.translations)
     root = root_body(character)
     mass = float(jnp.sum(character.model.bodies.mass))
     nj = character.model.joints.num_joints

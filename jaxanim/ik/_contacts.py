@@ -22,7 +22,7 @@ import numpy as np
 
 from .._errors import JaxanimError
 from .._types import Array, Bool, Float
-from ..kinematics._contacts import _clip_positions, _contacts, _feet, _runs, detect_foot_contacts, foot_joints
+from ..kinematics._contacts import clip_positions, contacts_from_positions, resolve_feet, true_runs, detect_foot_contacts, foot_joints
 from ..skeleton._skeleton import Motion, Skeleton
 from ._solve import IKOptions, solve_ik_clip
 from ._targets import Target
@@ -60,12 +60,12 @@ def _pinned_path(P: np.ndarray, contacts: np.ndarray, blend: int) -> np.ndarray:
     for k in range(P.shape[1]):
         offset = np.zeros((F, 3))
         inside = np.zeros(F, bool)
-        for a, b in _runs(contacts[:, k]):
+        for a, b in true_runs(contacts[:, k]):
             anchor = P[a, k]
             offset[a:b] = anchor - P[a:b, k]
             inside[a:b] = True
         fade = np.zeros((F, 3))
-        for a, b in _runs(contacts[:, k]):
+        for a, b in true_runs(contacts[:, k]):
             for edge, dist in ((a, a - frames), (b - 1, frames - (b - 1))):
                 u = np.clip(dist / (blend + 1.0), 0.0, 1.0)
                 w = np.where((dist > 0) & ~inside, 1.0 - u * u * (3.0 - 2.0 * u), 0.0)
@@ -133,12 +133,12 @@ def clean_foot_contacts(
     motion.check_finite("motion")
     if motion.num_frames == 0:
         raise JaxanimError("motion: the clip has no frames; there are no feet to plant")
-    feet, idx = _feet(skeleton, feet, up)
+    feet, idx = resolve_feet(skeleton, feet, up)
     F = motion.num_frames
     dt = float(motion.frame_time)
-    P = np.asarray(_clip_positions(skeleton, motion), dtype=np.float64)[:, idx]
+    P = np.asarray(clip_positions(skeleton, motion), dtype=np.float64)[:, idx]
     if contacts is None:
-        contacts = _contacts(skeleton, idx, P, dt, up, ground, height, speed)
+        contacts = contacts_from_positions(skeleton, idx, P, dt, up, ground, height, speed)
     else:
         contacts = np.asarray(contacts)
         if contacts.shape != (F, len(feet)):

@@ -40,8 +40,8 @@ from .._errors import JaxanimError
 from .._linalg import einsum, matmul
 from .._types import Array
 from ..kinematics._fk import forward_kinematics
-from ..kinematics._jacobians import _jacobian_from_fk
-from ..kinematics._limits import _charts, _resolve
+from ..kinematics._jacobians import jacobian_from_fk
+from ..kinematics._limits import limit_charts, resolve_limits
 from ..skeleton._skeleton import Skeleton
 from ._targets import Target, _check_targets
 
@@ -78,7 +78,7 @@ def _layout(skeleton: Skeleton, targets, pin, frozen, root_translation, limits=(
         raise JaxanimError("frozen: every joint is frozen and the root translation is fixed: nothing can move")
     if limit_mode not in ("hard", "soft"):
         raise JaxanimError(f"limit_mode: expected 'hard' or 'soft', got {limit_mode!r}")
-    limit_joints = _resolve(skeleton, limits)
+    limit_joints = resolve_limits(skeleton, limits)
     # a frozen joint keeps its reference rotation: its limit does not apply
     pairs = [(free_joints.index(j), i) for i, j in enumerate(limit_joints) if j in free_joints]
     return _Layout(
@@ -117,7 +117,7 @@ def _setup(
     p_world_pin = None
     if layout.pin_idx is not None:
         p_world_pin = forward_kinematics(skeleton, q_ref, t_ref).site_positions()[layout.pin_idx]
-    charts = _charts(skeleton, [limits[i] for i in layout.limit_ids],
+    charts = limit_charts(skeleton, [limits[i] for i in layout.limit_ids],
                      [layout.free_joints[k] for k in layout.limit_slots], layout.limit_slots, layout.hard, dtype)
     data = _IKData(
         skeleton, layout, tuple(targets), q_ref, t_ref, p_world_pin, reg_w, tuple(charts),
@@ -199,7 +199,7 @@ def _variable_jacobian(skeleton, layout, out, E, p_world_pin, dtype):
     the variables (root translation, then ``E_j`` per free joint), and the translation of the whole
     body that keeps the pinned site at ``p_world_pin`` (zero without a pin)."""
     sites = layout.site_idx + ((layout.pin_idx,) if layout.pin_idx is not None else ())
-    J_sites = _jacobian_from_fk(skeleton, out.rotations, out.positions, out.end_site_positions, sites)  # [S(+1), 6, 3+3J]
+    J_sites = jacobian_from_fk(skeleton, out.rotations, out.positions, out.end_site_positions, sites)  # [S(+1), 6, 3+3J]
     nfree = len(layout.free_joints)
     cols = np.asarray([3 + 3 * j + k for j in layout.free_joints for k in range(3)], dtype=np.int32)
     J_rot = J_sites[..., cols].reshape(J_sites.shape[0], 6, nfree, 3)

@@ -30,7 +30,7 @@ from .._errors import JaxanimError, check_shape
 from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics
 from ..kinematics._limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit
-from ..kinematics._limits import _bone_axis, limit_violation as limit_violation
+from ..kinematics._limits import bone_axis, limit_violation as limit_violation
 from ..robots._ik import solve_ik_robot
 from ..robots._robot import Robot
 from ..skeleton._skeleton import Motion, Skeleton
@@ -146,7 +146,7 @@ def _skeleton_defaults(skeleton: Skeleton, options: IKOptions) -> IKOptions:
                               is_leaf=lambda x: x is None)
     if not traced and any(isinstance(lim, SwingTwistLimit) and lim.axis is None for lim in options.limits):
         limits = tuple(
-            eqx.tree_at(lambda x: x.axis, lim, jnp.asarray(_bone_axis(skeleton, skeleton.index(lim.joint))),
+            eqx.tree_at(lambda x: x.axis, lim, jnp.asarray(bone_axis(skeleton, skeleton.index(lim.joint))),
                         is_leaf=lambda x: x is None)
             if isinstance(lim, SwingTwistLimit) and lim.axis is None else lim
             for lim in options.limits

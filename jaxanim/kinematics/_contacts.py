@@ -57,7 +57,9 @@ def _leg_length(skeleton: Skeleton, feet: Sequence[int], up: int) -> float:
     return length if length > 0 else float(np.sum(np.abs(np.asarray(skeleton.offsets))))
 
 
-def _feet(skeleton: Skeleton, feet, up: int) -> tuple[tuple[str, ...], list[int]]:
+def resolve_feet(skeleton: Skeleton, feet, up: int) -> tuple[tuple[str, ...], list[int]]:
+    """The foot joints' names and indices: ``feet`` checked, or :func:`foot_joints` when ``None``
+    (internal interface: also used by :mod:`jaxanim.ik`)."""
     if feet is None:
         feet = foot_joints(skeleton, up=up)
     elif isinstance(feet, str):
@@ -72,7 +74,9 @@ def _feet(skeleton: Skeleton, feet, up: int) -> tuple[tuple[str, ...], list[int]
 
 
 @eqx.filter_jit
-def _clip_positions(skeleton: Skeleton, motion: Motion):
+def clip_positions(skeleton: Skeleton, motion: Motion):
+    """``[frames, joints, 3]`` world joint positions of every frame (one batched FK; internal interface:
+    also used by :mod:`jaxanim.ik` and the command line)."""
     return jax.vmap(lambda q, t: forward_kinematics(skeleton, q, t).positions)(motion.rotations, motion.translations)
 
 
@@ -109,12 +113,14 @@ def detect_foot_contacts(
     """
     motion.check_skeleton(skeleton, "motion")
     motion.check_frame_time("motion")
-    feet, idx = _feet(skeleton, feet, up)
-    P = np.asarray(_clip_positions(skeleton, motion))[:, idx]  # [F, feet, 3]
-    return feet, _contacts(skeleton, idx, P, float(motion.frame_time), up, ground, height, speed)
+    feet, idx = resolve_feet(skeleton, feet, up)
+    P = np.asarray(clip_positions(skeleton, motion))[:, idx]  # [F, feet, 3]
+    return feet, contacts_from_positions(skeleton, idx, P, float(motion.frame_time), up, ground, height, speed)
 
 
-def _contacts(skeleton, idx, P, dt, up, ground, height, speed):
+def contacts_from_positions(skeleton, idx, P, dt, up, ground, height, speed):
+    """``[frames, feet]`` stance of the feet ``idx`` from joint positions ``P`` (low and slow: the
+    thresholds of :func:`detect_foot_contacts`; internal interface: also used by :mod:`jaxanim.ik`)."""
     scale = _leg_length(skeleton, idx, up)
     height = 0.06 * scale if height is None else float(height)
     speed = 0.5 * scale if speed is None else float(speed)
@@ -127,7 +133,7 @@ def _contacts(skeleton, idx, P, dt, up, ground, height, speed):
     return (h - ground <= height) & (v <= speed)
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """``[(start, stop), ...]`` of the runs of True in a 1-D bool array (``stop`` exclusive)."""
     m = np.concatenate([[False], mask, [False]])
     edges = np.flatnonzero(m[1:] != m[:-1])

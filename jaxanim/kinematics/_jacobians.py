@@ -32,7 +32,9 @@ from ._fk import _end_sites, _fk_levels, _prepare, _take
 from ..skeleton._skeleton import Skeleton
 
 
-def _site_indices(skeleton: Skeleton, sites) -> tuple[int, ...]:
+def site_indices(skeleton: Skeleton, sites) -> tuple[int, ...]:
+    """The site index of each joint or End Site name (or index), checked (internal interface: also
+    used by :mod:`jaxanim.ik`)."""
     if isinstance(sites, (str, int, np.integer)):
         sites = (sites,)
     if not isinstance(sites, Sequence) or len(sites) == 0:
@@ -80,13 +82,13 @@ def jacobian(
     Raises:
         JaxanimError: on a wrong shape or an unknown site.
     """
-    site_idx = _site_indices(skeleton, sites)
+    site_idx = site_indices(skeleton, sites)
     R_local, t_local = _prepare(skeleton, rotations, translations)
     R_world, p_world = _fk_levels(skeleton.parents, R_local, t_local)
-    return _jacobian_from_fk(skeleton, R_world, p_world, None, site_idx)
+    return jacobian_from_fk(skeleton, R_world, p_world, None, site_idx)
 
 
-def _jacobian_from_fk(skeleton: Skeleton, R_world, p_world, end_site_positions, site_idx: tuple[int, ...]):
+def jacobian_from_fk(skeleton: Skeleton, R_world, p_world, end_site_positions, site_idx: tuple[int, ...]):
     """:func:`jacobian` from global transforms already computed (``end_site_positions`` may be
     ``None``: computed here if a site needs it). For callers that also need FK (IK)."""
     J = skeleton.num_joints

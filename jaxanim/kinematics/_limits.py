@@ -137,7 +137,9 @@ Limit = EulerLimit | SwingTwistLimit
 # --------------------------------------------------------------------------------------------
 
 
-def _bone_axis(skeleton: Skeleton, j: int) -> np.ndarray:
+def bone_axis(skeleton: Skeleton, j: int) -> np.ndarray:
+    """The unit direction of joint ``j``'s bone in its own frame: its first child's (or End Site's)
+    non-zero offset (internal interface: also used by :mod:`jaxanim.ik`)."""
     offsets = np.asarray(skeleton.offsets)
     cands = [offsets[c] for c in range(skeleton.num_joints) if skeleton.parents[c] == j]
     cands += [np.asarray(skeleton.end_site_offsets)[e] for e, p in enumerate(skeleton.end_site_parents) if p == j]
@@ -159,7 +161,7 @@ def _basis(axis: Array) -> tuple[Array, Array]:
     return b1, jnp.cross(axis, b1)
 
 
-def _resolve(skeleton: Skeleton, limits: Sequence[Limit]) -> tuple[int, ...]:
+def resolve_limits(skeleton: Skeleton, limits: Sequence[Limit]) -> tuple[int, ...]:
     """Joint index of each limit; checks names, orders and duplicates (static, before tracing)."""
     if isinstance(limits, (EulerLimit, SwingTwistLimit)):
         limits = (limits,)
@@ -173,7 +175,7 @@ def _resolve(skeleton: Skeleton, limits: Sequence[Limit]) -> tuple[int, ...]:
         if isinstance(lim, EulerLimit):
             _order(skeleton, lim, j)
         elif lim.axis is None:
-            _bone_axis(skeleton, j)
+            bone_axis(skeleton, j)
         idx.append(j)
     return tuple(idx)
 
@@ -188,7 +190,7 @@ def _order(skeleton: Skeleton, lim: EulerLimit, j: int) -> str:
 
 
 def _axis(skeleton: Skeleton, lim: SwingTwistLimit, j: int, dtype) -> Array:
-    return (lim.axis if lim.axis is not None else jnp.asarray(_bone_axis(skeleton, j))).astype(dtype)
+    return (lim.axis if lim.axis is not None else jnp.asarray(bone_axis(skeleton, j))).astype(dtype)
 
 
 # --------------------------------------------------------------------------------------------
@@ -336,7 +338,7 @@ class _ChartGroup(eqx.Module):
         return jax.vmap(jax.jacfwd(_Chart.excess, argnums=1))(self.chart, theta)
 
 
-def _charts(
+def limit_charts(
     skeleton: Skeleton, limits: Sequence[Limit], joint_idx: Sequence[int], slots: Sequence[int], hard: bool, dtype
 ) -> list[_ChartGroup]:
     """The limited joints' charts, grouped by kind and Euler order (one vectorized call each)."""
@@ -394,11 +396,11 @@ def limit_violation(
     """
     if isinstance(limits, (EulerLimit, SwingTwistLimit)):
         limits = (limits,)
-    idx = _resolve(skeleton, limits)
+    idx = resolve_limits(skeleton, limits)
     check_shape("rotations", rotations, (skeleton.num_joints, 4), what=f"(joints, 4) = ({skeleton.num_joints}, 4)")
     q = jnp.asarray(rotations)
     out = jnp.zeros((len(limits),), q.dtype)
-    for group in _charts(skeleton, limits, idx, range(len(limits)), False, q.dtype):
+    for group in limit_charts(skeleton, limits, idx, range(len(limits)), False, q.dtype):
         qj = q[jnp.asarray([idx[i] for i in group.slots])]
         c = group.chart
         if c.kind == "euler":

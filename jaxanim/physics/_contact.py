@@ -139,7 +139,7 @@ def contact_points(bodies: RigidBodies) -> tuple[np.ndarray, Array, Array]:
     return np.asarray(owners, int), jnp.concatenate(locals_), jnp.concatenate(radii)
 
 
-def _geometry(ground: Ground, bodies: RigidBodies, state: BodyState):
+def contact_geometry(ground: Ground, bodies: RigidBodies, state: BodyState):
     """Per contact point: owner (static), lever ``c - x`` [K, 3], distance ``phi`` [K], velocity [K, 3]."""
     owner, local, radius = contact_points(bodies)
     n = ground.normal
@@ -153,7 +153,7 @@ def _geometry(ground: Ground, bodies: RigidBodies, state: BodyState):
 
 def penalty_loads(ground: Ground, bodies: RigidBodies, state: BodyState) -> tuple[Array, Array]:
     """Penalty contact forces and torques on every body, ``([B, 3], [B, 3])`` (world frame)."""
-    owner, r, phi, vel = _geometry(ground, bodies, state)
+    owner, r, phi, vel = contact_geometry(ground, bodies, state)
     n = ground.normal
     vn = matmul(vel, n)
     vt = vel - vn[:, None] * n[None, :]
@@ -171,7 +171,7 @@ def contact_rows(ground: Ground, bodies: RigidBodies, state: BodyState, h) -> tu
     ``u`` acts on body ``owner[u]``'s ``[v; omega]``; rows are ordered (normal, t1, t2) per point;
     ``target`` is ``b`` for the normal rows and 0 for the tangent rows. With ``ground.max_points``
     only the lowest points, ``K = max_points``."""
-    owner, r, phi, _ = _geometry(ground, bodies, state)
+    owner, r, phi, _ = contact_geometry(ground, bodies, state)
     owner = jnp.asarray(owner)
     if ground.max_points is not None and ground.max_points < phi.shape[0]:
         idx = jax.lax.top_k(-phi, ground.max_points)[1]

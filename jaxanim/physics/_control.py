@@ -31,7 +31,9 @@ from .._errors import JaxanimError, check_positive, check_shape
 __all__ = ["Control", "Servo", "StablePD"]
 
 
-def _optional_array(x):
+def optional_array(x):
+    """``None`` or ``jnp.asarray(x)``: the converter of optional array fields (internal interface: also
+    used by :mod:`jaxanim.tracking`)."""
     return None if x is None else jnp.asarray(x)
 
 
@@ -52,7 +54,7 @@ class StablePD(eqx.Module):
     targets: Float[Array, "joints 4"] = eqx.field(converter=jnp.asarray)
     kp: Float[Array, "#joints"] = eqx.field(converter=jnp.asarray)
     kd: Float[Array, "#joints"] = eqx.field(converter=jnp.asarray)
-    torque_limit: Float[Array, "#joints"] | None = eqx.field(default=None, converter=_optional_array)
+    torque_limit: Float[Array, "#joints"] | None = eqx.field(default=None, converter=optional_array)
 
 
 class Servo(eqx.Module):
@@ -82,9 +84,9 @@ class Control(eqx.Module):
     ``servo`` come back as :class:`StablePD` and :class:`Servo`).
     """
 
-    force: Float[Array, "bodies 3"] | None = eqx.field(default=None, converter=_optional_array)
-    torque: Float[Array, "bodies 3"] | None = eqx.field(default=None, converter=_optional_array)
-    joint_torque: Float[Array, "joints 3"] | None = eqx.field(default=None, converter=_optional_array)
+    force: Float[Array, "bodies 3"] | None = eqx.field(default=None, converter=optional_array)
+    torque: Float[Array, "bodies 3"] | None = eqx.field(default=None, converter=optional_array)
+    joint_torque: Float[Array, "joints 3"] | None = eqx.field(default=None, converter=optional_array)
     spd: StablePD | None = None
     servo: Servo | None = None
 

@@ -15,7 +15,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from .._errors import JaxanimError
 from ._bodies import BodyState
 from ._model import PhysicsModel
-from ._step import _check_dt, _check_state, _control_for, _step
+from ._step import _check_dt, _check_state, control_for, _step
 
 __all__ = ["Rollout", "SimResult", "rollout"]
 
@@ -63,7 +63,7 @@ def _rollout(model, state, h, num_steps, record_every, controller, controller_ar
     def inner(carry, _):
         s, code, count = carry
         u = None if controller is None else controller(s, count, controller_args)
-        new = _step(model, s, _control_for(model, u), h)
+        new = _step(model, s, control_for(model, u), h)
         finite = _finite_state(new)
         fast = (jnp.max(jnp.abs(new.linear_velocity)) > max_speed) | (
             jnp.max(jnp.abs(new.angular_velocity)) > max_angular_speed

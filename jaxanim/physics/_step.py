@@ -265,10 +265,10 @@ def _split(V):
 
 def _step(model: PhysicsModel, state: BodyState, control: Control, h) -> BodyState:
     """One step with a checked :class:`Control` (every load filled in: :func:`_as_control`)."""
-    return _step_and_torques(model, state, control, h)[0]
+    return step_and_torques(model, state, control, h)[0]
 
 
-def _step_and_torques(model: PhysicsModel, state: BodyState, control: Control, h):
+def step_and_torques(model: PhysicsModel, state: BodyState, control: Control, h):
     """:func:`_step` and the stable-PD torques it applied (``[joints, 3]`` world frame, N m, or
     ``None`` without ``control.spd``)."""
     force, torque = control.force, control.torque
@@ -286,7 +286,7 @@ def _check_state(model: PhysicsModel, state: BodyState) -> None:
     _check_loads(state, model.bodies.num_bodies, model.bodies.mass.dtype, ())
 
 
-def _control_for(model: PhysicsModel, control=None, **keywords) -> Control:
+def control_for(model: PhysicsModel, control=None, **keywords) -> Control:
     """:func:`_as_control` for ``model``'s sizes and dtype."""
     return _as_control(model.bodies.num_bodies, model.joints.num_joints, model.bodies.mass.dtype, control, **keywords)
 
@@ -342,7 +342,7 @@ def step(
             expected shape), a malformed ``spd`` / ``servo``, both ``control`` and keywords, or a
             ``dt`` that is not a positive finite number.
     """
-    control = _control_for(model, control, force=force, torque=torque, joint_torque=joint_torque, spd=spd,
+    control = control_for(model, control, force=force, torque=torque, joint_torque=joint_torque, spd=spd,
                            servo=servo)
     _check_state(model, state)
     _check_dt(dt)
@@ -362,7 +362,7 @@ def _check_dt(dt) -> None:
 
 @eqx.filter_jit
 def _spd_torques_jit(model, state, control, h):
-    return _step_and_torques(model, state, control, h)[1]
+    return step_and_torques(model, state, control, h)[1]
 
 
 def spd_torques(
@@ -372,7 +372,7 @@ def spd_torques(
     ``step(model, state, dt, control)`` applies: the implicit law's torques, or for a joint held at
     its ``torque_limit`` the bounded torque. Zeros without ``spd``. Takes the arguments of
     :func:`step` (the same checks and errors)."""
-    control = _control_for(model, control, **keywords)
+    control = control_for(model, control, **keywords)
     _check_state(model, state)
     _check_dt(dt)
     tau = _spd_torques_jit(model, state, control, jnp.asarray(dt, model.bodies.mass.dtype))

@@ -22,7 +22,7 @@ from .. import rotations as rot
 from .._errors import JaxanimError
 from .._linalg import einsum
 from .._types import Array, Bool, Float
-from ..kinematics._contacts import _runs, detect_foot_contacts
+from ..kinematics._contacts import true_runs, detect_foot_contacts
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
 from ._kinematics import _targets
@@ -210,7 +210,7 @@ def prepare_retarget(
     stance_height = np.zeros(len(feet_k))
     for f, k in enumerate(feet_k):
         R0 = R_flat[f]
-        runs = _runs(contacts[:, f])
+        runs = true_runs(contacts[:, f])
         for a, b in runs:
             anchors[a:b, f] = P[a:b, k, :2].mean(axis=0)
             heading = _yaw(R_target[a:b, k] @ R0.T)

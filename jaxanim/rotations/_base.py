@@ -45,7 +45,7 @@ def _as_float(name: str, x, trailing: tuple[int, ...]) -> Array:
     return x
 
 
-def _as_float_any(name: str, x) -> Array:
+def as_float_any(name: str, x) -> Array:
     """Like :func:`_as_float` for an argument with no core dimensions (a scalar per batch item)."""
     try:
         x = jnp.asarray(x)

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 from .._types import Array, ArrayLike, Float
 from ._base import (
     _as_float,
-    _as_float_any,
+    as_float_any,
     _broadcast,
     _cross,
     _dot,
@@ -170,7 +170,7 @@ def axis_angle_to_quat(
         JaxanimError: on a wrong trailing dimension or batch shapes that do not broadcast.
     """
     axis = _as_float("axis", axis, (3,))
-    angle = _as_float_any("angle", angle)
+    angle = as_float_any("angle", angle)
     axis, angle = _broadcast(("axis", "angle"), (axis, 1), (angle, 0))
     u, ok = _safe_normalize(axis, jnp.zeros_like(axis))
     half = 0.5 * angle
@@ -209,7 +209,7 @@ def quat_to_axis_angle(q: Float[ArrayLike, "*batch 4"]) -> tuple[Float[Array, "*
 
 
 def _interp_inputs(q0, q1, t) -> tuple[Array, Array, Array]:
-    q0, q1, t = _as_float("q0", q0, (4,)), _as_float("q1", q1, (4,)), _as_float_any("t", t)
+    q0, q1, t = _as_float("q0", q0, (4,)), _as_float("q1", q1, (4,)), as_float_any("t", t)
     q0, q1, t = _broadcast(("q0", "q1", "t"), (q0, 1), (q1, 1), (t, 0))
     # Shortest path: q1 and -q1 are the same rotation; take the one in q0's hemisphere. Rotations
     # 180 degrees apart (q0 . q1 = 0) have two shortest paths; a margin above round-off keeps q1 as

@@ -158,7 +158,7 @@ def _frames_kernel(skeleton, rotations, translations, vertices, joints, w, bind,
         skeleton, rotations, translations, vertices, joints, w, bind, pairs)
 
 
-_skin_frames = jax.jit(_frames_kernel, static_argnames=("method", "precision"))
+skin_frames = jax.jit(_frames_kernel, static_argnames=("method", "precision"))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -279,12 +279,12 @@ def skin_motion(
     Raises:
         JaxanimError: as :func:`skin`, or a clip that does not fit the skeleton.
     """
-    return _skin_frames(*_frames_args(skeleton, motion, mesh, weights, method, bind, normalize), method=method,
+    return skin_frames(*skin_frames_args(skeleton, motion, mesh, weights, method, bind, normalize), method=method,
                         precision=check_precision("precision", precision))
 
 
-def _frames_args(skeleton, motion, mesh, weights, method="lbs", bind=None, normalize=False) -> tuple:
-    """The checked arguments of :data:`_skin_frames` (the command line and the benchmark compile it apart)."""
+def skin_frames_args(skeleton, motion, mesh, weights, method="lbs", bind=None, normalize=False) -> tuple:
+    """The checked arguments of :data:`skin_frames` (the command line and the benchmark compile it apart)."""
     if not isinstance(motion, Motion):
         raise JaxanimError(f"motion: expected a jaxanim.Motion, got {type(motion).__name__}")
     vertices, joints, w, bind, pairs, dtype = _prepare(skeleton, mesh, weights, method, bind, normalize,

@@ -49,7 +49,7 @@ from jax.lax.linalg import tridiagonal_solve
 from .._errors import JaxanimError, check_shape
 from .._linalg import einsum
 from .._types import Array, ArrayLike, Float
-from ..rotations._base import _as_float_any
+from ..rotations._base import as_float_any
 
 _MAX_DERIVATIVE = 3
 
@@ -61,7 +61,7 @@ _MAX_DERIVATIVE = 3
 
 def _as_float_array(name: str, x) -> Array:
     """``x`` as a floating jax array (integers become the default float); the rotations' own check."""
-    return _as_float_any(name, x)
+    return as_float_any(name, x)
 
 
 def _check_knots(name: str, knots) -> Array:

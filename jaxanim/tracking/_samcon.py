@@ -45,12 +45,12 @@ from solvers import RESULTS
 from .. import rotations as rot
 from .._errors import JaxanimError, check_positive
 from .._linalg import dot, matmul
-from ..character._build import Character, _clip_targets, root_body
+from ..character._build import Character, clip_targets, root_body
 from ..physics._bodies import BodyState
-from ..physics._contact import _geometry
-from ..physics._control import Control, StablePD, _optional_array
+from ..physics._contact import contact_geometry
+from ..physics._control import Control, StablePD, optional_array
 from ..physics._joints import joint_errors
-from ..physics._step import _control_for, _step_and_torques
+from ..physics._step import control_for, step_and_torques
 from ..skeleton._skeleton import Motion
 
 __all__ = [
@@ -102,7 +102,7 @@ class TrackingOptions(eqx.Module):
     w_position: Float[Array, ""] = eqx.field(default=30.0, converter=jnp.asarray)
     w_velocity: Float[Array, ""] = eqx.field(default=0.1, converter=jnp.asarray)
     w_root: Float[Array, ""] = eqx.field(default=2.0, converter=jnp.asarray)
-    torque_limit: Float[Array, "#joints"] | None = eqx.field(default=None, converter=_optional_array)
+    torque_limit: Float[Array, "#joints"] | None = eqx.field(default=None, converter=optional_array)
 
     def __check_init__(self):
         _positive_int("samples", self.samples, 2)
@@ -170,7 +170,7 @@ def tracking_reference(character: Character, motion: Motion, *, ground_clip: boo
     if motion.num_frames < 2:
         raise JaxanimError(f"motion: expected at least 2 frames to track, got {motion.num_frames}")
     dt = float(motion.frame_time)
-    targets, states = _clip_targets(character, motion.rotations, motion.translations)
+    targets, states = clip_targets(character, motion.rotations, motion.translations)
     states, lift = _grounded_states(character, states, jnp.asarray(dt, states.position.dtype),
                                     ground_clip and character.model.ground.model != "none")
     return TrackingReference(targets=targets, states=states, frame_time=jnp.asarray(dt, states.position.dtype), lift=lift)
@@ -183,7 +183,7 @@ def _grounded_states(character: Character, states: BodyState, dt, ground_clip: b
     lift = jnp.zeros((), states.position.dtype)
     ground = character.model.ground
     if ground_clip:
-        lowest = jax.vmap(lambda s: jnp.min(_geometry(ground, character.model.bodies, s)[2]))(states)
+        lowest = jax.vmap(lambda s: jnp.min(contact_geometry(ground, character.model.bodies, s)[2]))(states)
         lift = -jnp.median(lowest)
         states = eqx.tree_at(lambda s: s.position, states, states.position + lift * ground.normal[None, None, :])
     return _velocities(states, dt), lift
@@ -407,7 +407,7 @@ def _problem(character: Character, reference: TrackingReference, options: Tracki
                 n = (f - 1) * options.steps_per_frame + k
                 on = (n >= first) & (n < stop)
                 force = jnp.zeros_like(s.position).at[body].set(jnp.where(on, 1.0, 0.0) * fvec)
-            s, tau = _step_and_torques(model, s, _control_for(model, Control(spd=spd, force=force)), h)
+            s, tau = step_and_torques(model, s, control_for(model, Control(spd=spd, force=force)), h)
             return s, jnp.linalg.norm(tau, axis=-1)
 
         s, tau = jax.lax.scan(physics_step, s, jnp.arange(options.steps_per_frame))
