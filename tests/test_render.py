@@ -156,13 +156,15 @@ def test_render_mp4_without_ffmpeg_names_the_fix(tmp_path, capsys, monkeypatch):
         (["--frames", "5:3", "--out", "x.gif"], "--frames 5:3: expected A:B with 0 <= A < B <= 120"),
         (["--frames", "0:500", "--out", "x.gif"], "--frames 0:500: expected A:B with 0 <= A < B <= 120"),
         (["--frames", "three", "--out", "x.gif"], "--frames three: expected A:B"),
-        (["--size", "8", "--out", "x.gif"], "--size 8: expected at least 32 pixels"),
+        (["--size", "8", "--out", "x.gif"], "--size 8: expected 32 to 4096 pixels"),
+        (["--size", "70000", "--out", "x.gif"], "--size 70000: expected 32 to 4096 pixels"),
+        (["--fps", "1e6", "--out", "x.gif"], "--fps 1e+06: expected a positive number of frames per second, at most 240"),
         (["missing.bvh", "--out", "x.gif"], "missing.bvh: cannot read the file"),
         (["--compare", "missing.bvh", "--out", "x.gif"], "missing.bvh: cannot read the file"),
         (["--out", "no/such/dir/x.gif"], "cannot write it: the directory"),
     ],
     ids=["ext", "no-ext", "fps0", "fps-neg", "fps-nan", "frames-order", "frames-range", "frames-syntax", "size",
-         "missing", "compare-missing", "out-dir"],
+         "size-huge", "fps-huge", "missing", "compare-missing", "out-dir"],
 )
 def test_render_bad_input(tmp_path, capsys, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)

@@ -149,8 +149,10 @@ def test_view_command_prints_the_url_and_stops(capsys, monkeypatch):
     [
         (["missing.bvh"], "error: missing.bvh: cannot read the file"),
         (["--port", "70000"], "error: --port 70000: expected 0 to 65535"),
+        (["--host", "999.1.1.1"], "error: --host 999.1.1.1: not an IP address or a host name"),
+        (["--host", "192.0.2.1"], "error: --host 192.0.2.1: cannot listen on it"),  # TEST-NET-1: no local interface
     ],
-    ids=["missing", "port"],
+    ids=["missing", "port", "host-syntax", "host-not-local"],
 )
 def test_view_bad_input(capsys, argv, message):
     code, _, err = _run(capsys, "view", *argv)

@@ -164,8 +164,9 @@ def _cmd_info(args: argparse.Namespace, ui: _UI) -> int:
 
 def _cmd_fk(args: argparse.Namespace, ui: _UI) -> int:
     clip = _load(args.file, ui, args.dtype)
-    run = _clip_fk(clip, ui)
     out = args.out or f"{clip.stem}.fk.npz"
+    _check_writable("--out", out)
+    run = _clip_fk(clip, ui)
     ui.progress(f"writing {out}")
     arrays = _fk_arrays(clip.skeleton, clip.motion, run.result)
     _save_npz(out, arrays)
@@ -185,18 +186,24 @@ def _cmd_ik(args: argparse.Namespace, ui: _UI) -> int:
     from ..ik import solve_ik_clip, targets_from_json
 
     clip = _load(args.file, ui, args.dtype)
+    out = args.out or f"{clip.stem}.ik.bvh"
+    _check_writable("--out", out)
     try:
         with open(args.targets, encoding="utf-8") as fh:
             data = json.load(fh)
     except json.JSONDecodeError as exc:
         raise JaxanimError(f"{args.targets}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+    except UnicodeDecodeError as exc:
+        raise JaxanimError(f"{args.targets}: not UTF-8 text (byte {exc.start}): save the targets as UTF-8 "
+                           "JSON") from None
+    except OSError as exc:
+        raise JaxanimError(f"{args.targets}: cannot read the file: {exc.strerror or exc}") from None
     targets, kwargs = targets_from_json(clip.skeleton, data, clip.motion.num_frames)
     ui.progress(f"IK on {clip.motion.num_frames} frames (one batched call)")
     t0 = time.perf_counter()
     edited, sol = solve_ik_clip(clip.skeleton, clip.motion, targets, **kwargs)
     jax.block_until_ready(edited)
     seconds = time.perf_counter() - t0
-    out = args.out or f"{clip.stem}.ik.bvh"
     write_bvh(out, clip.skeleton, edited)
     ok = int(np.asarray(sol.success).sum())
     ui.result(
@@ -211,6 +218,7 @@ def _cmd_plot(args: argparse.Namespace, ui: _UI) -> int:
     clip = _load(args.file, ui, args.dtype)
     _check_frame(clip, args.frame)
     out = args.out or f"{clip.stem}_frame{args.frame}.png"
+    _check_writable("--out", out)
     ui.progress(f"drawing frame {args.frame} to {out}")
     _plot(clip, args.frame, out)
     ui.result(f"wrote {out} (frame {args.frame} of {clip.motion.num_frames})")

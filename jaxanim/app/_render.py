@@ -128,9 +128,15 @@ def _check_writer(name: str, out) -> None:
                            "(GIF needs Pillow: pip install pillow)")
 
 
+#: The largest ``--size`` (pixels) and ``--fps``: a picture of 70000 pixels grew to 23 GB, and 1e6 fps drew
+#: thousands of frames from two.
+MAX_SIZE = 4096
+MAX_FPS = 240.0
+
+
 def _check_fps(fps: float | None) -> None:
-    if fps is not None and not (math.isfinite(fps) and fps > 0):
-        raise JaxanimError(f"--fps {fps:g}: expected a positive number of frames per second")
+    if fps is not None and not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
+        raise JaxanimError(f"--fps {fps:g}: expected a positive number of frames per second, at most {MAX_FPS:g}")
 
 
 def _check_output(out, fps, camera: str, size) -> str:
@@ -139,8 +145,8 @@ def _check_output(out, fps, camera: str, size) -> str:
     _check_fps(fps)
     if camera not in _CAMERAS:
         raise JaxanimError(f"--camera {camera}: expected one of {', '.join(_CAMERAS)}")
-    if not (isinstance(size, int) and size >= 32):
-        raise JaxanimError(f"--size {size}: expected at least 32 pixels")
+    if not (isinstance(size, int) and 32 <= size <= MAX_SIZE):
+        raise JaxanimError(f"--size {size}: expected 32 to {MAX_SIZE} pixels")
     return writer_name
 
 
@@ -471,7 +477,8 @@ def render_clips(
         A :class:`RenderInfo`.
 
     Raises:
-        JaxanimError: an unknown extension, no ffmpeg for MP4, ``fps <= 0``, frames out of range,
+        JaxanimError: an unknown extension, no ffmpeg for MP4, ``fps`` not in (0, MAX_FPS], a ``size`` not
+            in [32, MAX_SIZE], frames out of range,
             a camera name not in ``("follow", "fixed")``, no matplotlib.
         OSError: the file cannot be written.
     """
@@ -570,7 +577,8 @@ def render_retarget(
 
     Raises:
         JaxanimError: a bad result (the message names the file and the key), an unknown extension,
-            no ffmpeg for MP4, ``fps <= 0``, frames out of range, an unknown camera, no matplotlib.
+            no ffmpeg for MP4, ``fps`` not in (0, MAX_FPS], a ``size`` not in [32, MAX_SIZE], frames out of
+            range, an unknown camera, no matplotlib.
         OSError: the file cannot be written.
     """
     ui = ui or _UI(quiet=True)
@@ -669,11 +677,12 @@ def add_render_parser(sub, common) -> None:
     p.add_argument("--out", "-o", default=None, metavar="OUT.gif|OUT.mp4",
                    help="output file: .gif (Pillow) or .mp4 (needs ffmpeg) (default: <name>.gif here)")
     p.add_argument("--fps", type=float, default=None, metavar="F",
-                   help="output frames per second (default: the clip's frame rate; frames are picked by time)")
+                   help="output frames per second, at most 240 (default: the clip's frame rate; frames are picked by "
+                        "time)")
     p.add_argument("--frames", default=None, metavar="A:B",
                    help="frames A to B-1 of FILE (either end may be left out; default: all, and all of OTHER)")
     p.add_argument("--camera", choices=_CAMERAS, default="follow",
                    help="follow the root (default) or fixed on the whole clip's bounding box")
     p.add_argument("--size", type=int, default=360, metavar="PX",
-                   help="height of the output and width of each panel, in pixels (default 360)")
+                   help="height of the output and width of each panel, in pixels: 32 to 4096 (default 360)")
     p.set_defaults(func=_cmd_render)

@@ -34,7 +34,10 @@ import argparse
 import contextlib
 import dataclasses
 import io
+import ipaddress
 import math
+import re
+import socket
 import threading
 from collections.abc import Sequence
 from typing import Any
@@ -175,6 +178,23 @@ def _retarget_views(c: RetargetClip, index: np.ndarray, group: int) -> list[_Vie
     return [robot, source]
 
 
+def _check_host(host: str) -> None:
+    """Refuse an address that cannot be listened on before any work (``999.1.1.1`` hung after
+    "starting the viewer"): not an IP address nor a host name, or one that a socket cannot bind."""
+    try:
+        literal = ipaddress.ip_address(host)
+    except ValueError:
+        literal = None
+        if re.fullmatch(r"[0-9.]+", host) or not re.fullmatch(r"[A-Za-z0-9.-]+", host):
+            raise JaxanimError(f"--host {host}: not an IP address or a host name") from None
+    family = socket.AF_INET6 if literal is not None and literal.version == 6 else socket.AF_INET
+    try:
+        with socket.socket(family) as sock:
+            sock.bind((host, 0))
+    except OSError as exc:
+        raise JaxanimError(f"--host {host}: cannot listen on it: {exc.strerror or exc}") from None
+
+
 def build_viewer(
     clips: Sequence[_Clip | RetargetClip],
     *,
@@ -199,13 +219,14 @@ def build_viewer(
         A :class:`Viewer`; :meth:`Viewer.close` stops the server.
 
     Raises:
-        JaxanimError: viser is not installed, no clip, a clip without frames or with non-finite
-            positions, ``--mesh`` without :mod:`jaxanim.skinning`.
+        JaxanimError: viser is not installed, no clip, a ``host`` that cannot be listened on, a clip
+            without frames or with non-finite positions, ``--mesh`` without :mod:`jaxanim.skinning`.
     """
     ui = ui or _UI(quiet=True)
     viser = _import_viser()
     if not clips:
         raise JaxanimError("no clip to view")
+    _check_host(host)
     for c in clips:
         if _timing(c)[0] == 0:
             raise JaxanimError(f"{c.label} has no frames")

@@ -10,7 +10,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import JaxanimError, check_shape
-from ..kinematics._jacobians import _site_indices
+from ..kinematics._jacobians import site_indices
 from ..kinematics._limits import EulerLimit, SwingTwistLimit
 from ..skeleton._skeleton import Skeleton
 
@@ -56,7 +56,7 @@ def _check_targets(skeleton: Skeleton, targets, root_translation) -> tuple[tuple
         raise JaxanimError("targets: expected a non-empty sequence of jaxanim.ik.Target")
     if root_translation not in ("free", "fixed"):
         raise JaxanimError(f"root_translation: expected 'free' or 'fixed', got {root_translation!r}")
-    site_idx = _site_indices(skeleton, [t.site for t in targets])
+    site_idx = site_indices(skeleton, [t.site for t in targets])
     for t in targets:  # one problem: no leading axes (vmap over them instead)
         if t.position is not None:
             check_shape(f"targets[{t.site!r}].position", t.position, (3,))
@@ -123,10 +123,17 @@ def targets_from_json(skeleton: Skeleton, data, num_frames: int):
                 raise JaxanimError(
                     f"{where}.{key}: expected shape ({n},) or (frames, {n}) = ({num_frames}, {n}), got {x.shape}"
                 )
+            if not np.all(np.isfinite(x)):
+                raise JaxanimError(f"{where}.{key}: expected finite numbers, got NaN or inf"
+                                   + (f" at frame {int(np.argwhere(~np.isfinite(x))[0, 0])}" if x.ndim == 2 else ""))
+            if key == "orientation" and np.any(np.linalg.norm(x, axis=-1) < 1e-6):
+                raise JaxanimError(f"{where}.orientation: expected a rotation quaternion [w, x, y, z], got a zero "
+                                   "one" + (f" at frame {int(np.argmin(np.linalg.norm(x, axis=-1)))}" if x.ndim == 2
+                                            else ""))
             return x
 
         weight = item.get("weight", 1.0)
-        if not isinstance(weight, (int, float)) or weight < 0:
+        if not isinstance(weight, (int, float)) or isinstance(weight, bool) or not np.isfinite(weight) or weight < 0:
             raise JaxanimError(f"{where}.weight: expected a non-negative number, got {weight!r}")
         targets.append(Target(name, field("position", 3), field("orientation", 4), float(weight)))
     kwargs = {}
@@ -141,7 +148,8 @@ def targets_from_json(skeleton: Skeleton, data, num_frames: int):
     kwargs["frozen"] = tuple(frozen)
     for key in ("regularization", "position_tolerance", "orientation_tolerance", "limit_weight"):
         if key in data:
-            if not isinstance(data[key], (int, float)) or isinstance(data[key], bool) or data[key] < 0:
+            if (not isinstance(data[key], (int, float)) or isinstance(data[key], bool) or not np.isfinite(data[key])
+                    or data[key] < 0):
                 raise JaxanimError(f"TARGETS.json: {key!r} must be a non-negative number, got {data[key]!r}")
             kwargs[key] = float(data[key])
     if "limit_mode" in data:
