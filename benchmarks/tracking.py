@@ -85,10 +85,10 @@ def _samples_table(config, sz: TrackingSizes) -> Table:
             "same dt on its `character.export_mjcf` model (joint springs of the same kp, kd towards that frame's pose, "
             "Euler, condim 3 plane): the simulation of one window's samples, without the search; with springs it has "
             "one target for all samples, jaxanim a different one per sample. Accuracy: the search's mean joint error "
-            "over the tracked frames. Per character-step the search costs about what the step alone costs in the "
-            "`physics` table's `jaxanim rollout (complementarity:8)` rows and their profile (`python -m benchmarks "
-            "profile`: the level-by-level tree solve and the sequential PGS rows), so the gap to MuJoCo C is the "
-            "physics step's, not the search's."),
+            "over the tracked frames. What the search adds to the step is this table's µs / char against the "
+            "`physics` table's `jaxanim rollout (complementarity:8)` rows (the step alone); where the step's time "
+            "goes is in their profile (`python -m benchmarks profile`: the level-by-level tree solve and the "
+            "sequential PGS rows)."),
         targets=[Target("SAMCON at batch 1024 at most MuJoCo C's time per character-step (rollout on all threads; "
                         "speedup ≥ 1x)", sel(_SEARCH, batch=1024), 1.0, versus=sel((_MJ_ROLLOUT, _MJ_LOOP), batch=1024)),
                  Target("search compile ≤ 30 s", sel(_SEARCH), 30.0, "compile", worst=True)]
