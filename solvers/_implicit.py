@@ -32,22 +32,24 @@ def stop_gradient_arrays(tree):
     return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_inexact_array(x) else x, tree)
 
 
-def attach_minimizer(y, objective: Callable, args, lower=None, upper=None):
+def attach_minimizer(y, objective: Callable, args, lower=None, upper=None, converged=True):
     """``y`` (a minimizer of ``objective(y, args)``, ``[n]``), carrying the derivative of the
     minimizer with respect to ``args`` (see the module docstring); ``lower`` / ``upper`` are the
-    bounds the minimization respected, or ``None``."""
-    return _attach(y, args, lower, upper, objective=objective)
+    bounds the minimization respected, or ``None``. ``converged`` (a bool scalar): whether the solve
+    reached a minimizer; where it did not, the derivative is NaN (the theorem holds only at a
+    minimizer: a plausible number there would be wrong without a sign)."""
+    return _attach(y, args, lower, upper, jnp.asarray(converged), objective=objective)
 
 
 @eqx.filter_custom_jvp
-def _attach(y, args, lower, upper, *, objective):
+def _attach(y, args, lower, upper, converged, *, objective):
     return y
 
 
 @_attach.def_jvp
 def _attach_jvp(primals, tangents, *, objective):
-    y, args, lower, upper = primals
-    _, dargs, _, _ = tangents  # the minimizer does not depend on where the solve started
+    y, args, lower, upper, converged = primals
+    _, dargs, _, _, _ = tangents  # the minimizer does not depend on where the solve started
     y = jax.lax.stop_gradient(y)
     if dargs is None or all(t is None for t in jax.tree.leaves(dargs, is_leaf=lambda x: x is None)):
         return y, jnp.zeros_like(y)
@@ -60,4 +62,5 @@ def _attach_jvp(primals, tangents, *, objective):
         H = jnp.where(free[:, None] & free[None, :], H, jnp.eye(y.shape[0], dtype=H.dtype))
         b = jnp.where(free, b, 0.0)
     dy = -matmul(jnp.linalg.pinv(H, hermitian=True), b)
-    return y, dy
+    # a factor, not a where: the rule must stay linear in the tangents for jax.grad to transpose it
+    return y, dy * jnp.where(converged, 1.0, jnp.nan).astype(dy.dtype)

@@ -212,7 +212,8 @@ def _least_squares(fn, jac, solver, y0, args, lower, upper, stop, throw) -> Solu
     else:
         sol = _run(solver, problem, problem.project(y0), solve_args)
     residual = (lambda y, a: fn(y, a)[0]) if jac is True else fn
-    value = attach_minimizer(sol.value, lambda y, a: 0.5 * jnp.sum(residual(y, a) ** 2), args, lower, upper)
+    value = attach_minimizer(sol.value, lambda y, a: 0.5 * jnp.sum(residual(y, a) ** 2), args, lower, upper,
+                             converged=sol.result == RESULTS.successful)
     sol = eqx.tree_at(lambda s: s.value, sol, value)
     if throw:
         sol = eqx.tree_at(

@@ -352,7 +352,8 @@ def _solve(problem, x0, us, args, options: ILQROptions, throw) -> TrajectorySolu
         return problem.rollout(a[0], u.reshape(T, m), a[1])[1]
 
     bounds = (None, None) if not problem.bounded else (jnp.tile(problem.lower, T), jnp.tile(problem.upper, T))
-    us_out = attach_minimizer(s.us.reshape(T * m), total, (x0_d, args_d), *bounds).reshape(T, m)
+    us_out = attach_minimizer(s.us.reshape(T * m), total, (x0_d, args_d), *bounds,
+                              converged=result == RESULTS.successful).reshape(T, m)
     xs_out, cost_out = _with_rollout_tangent(s.xs, s.cost, us_out, x0_d, args_d, rollout=problem.rollout)
     if throw:
         xs_out = result.error_if(xs_out, result != RESULTS.successful)

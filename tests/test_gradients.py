@@ -101,3 +101,34 @@ def test_ilqr_solution_gradient_matches_finite_differences():
     # iLQR stops on the predicted decrease (< 16 eps J), which leaves the controls ~1e-7 from the
     # optimum: over steps of 1e-3 that is ~1e-4 of noise in the differences, hence 1e-3 here
     np.testing.assert_allclose(grad, fd, rtol=1e-3, atol=1e-8)
+
+
+def test_a_solve_that_did_not_converge_has_a_nan_derivative():
+    """The implicit derivative holds only at a minimizer: a least-squares solve or an iLQR that ran out
+    of steps gives NaN, never a plausible number; the same solves converged give finite ones."""
+
+    def residual(y, a):
+        return jnp.stack([y[0] ** 2 - a, 10.0 * (y[1] - y[0] ** 2), jnp.sin(y[0] * y[1])])
+
+    def ls(a, steps):
+        sol = solvers.least_squares(residual, solvers.LevenbergMarquardt(max_steps=steps), jnp.array([3.0, -2.0]), a)
+        return sol.value[0], sol.result
+
+    for steps, ok in ((2, False), (200, True)):
+        _, result = ls(2.0, steps)
+        assert (result == solvers.RESULTS.successful) == ok
+        g = jax.grad(lambda a: ls(a, steps)[0])(2.0)
+        assert np.isfinite(float(g)) == ok, (steps, g)
+
+    def dynamics(x, u, t, args):
+        return jnp.stack([x[0] + 0.05 * x[1], x[1] + 0.05 * (-9.81 * jnp.sin(x[0]) + u[0])])
+
+    def cost(x, u, t, args):
+        return 0.5 * args * (x[0] - jnp.pi) ** 2 + 0.05 * u[0] ** 2
+
+    for steps, ok in ((1, False), (500, True)):
+        def f(w, steps=steps):
+            return jnp.sum(solvers.ilqr(dynamics, cost, jnp.array([0.3, 0.0]), jnp.zeros((30, 1)), args=w,
+                                        max_steps=steps).us)
+        g = jax.grad(f)(2.0)
+        assert np.isfinite(float(g)) == ok, (steps, g)
