@@ -37,8 +37,10 @@ def _adapter_solution(
     step: Float[Array, " n"],
     damping: Float[Array, ""],
     max_steps: int,
+    stopped_early=False,
 ) -> Solution:
-    """Common stats for the adapters; a non-finite value is replaced by ``y0``."""
+    """Common stats for the adapters; a non-finite value is replaced by ``y0``. ``stopped_early``: the user's
+    ``stop`` ended the solve before the solver's own criterion held."""
     dtype = y0.dtype
     value = jnp.asarray(value).astype(dtype)
     ok = _all_finite(value)
@@ -62,6 +64,7 @@ def _adapter_solution(
         step_norm=finite_or_inf(jnp.max(jnp.abs(step.astype(dtype)))),
         damping=finite_or_inf(jnp.asarray(damping, dtype)),
         cost_history=history,
+        stopped_early=jnp.asarray(stopped_early, bool),
     )
     return Solution(value=value, result=result, stats=stats)
 
@@ -240,7 +243,8 @@ class OptimistixSolver(_AbstractAdapter):
                 ),
             ),
         )
-        return _adapter_solution(problem, y0, args, value, result, num_steps, step, damping, self.max_steps)
+        early = user & (r == optx.RESULTS.nonlinear_max_steps_reached)  # optimistix's own test did not hold
+        return _adapter_solution(problem, y0, args, value, result, num_steps, step, damping, self.max_steps, early)
 
 
 def _import_jaxopt():
@@ -369,5 +373,6 @@ class JaxoptSolver(_AbstractAdapter):
         result = RESULTS.where(converged, RESULTS.successful, RESULTS.max_steps_reached)
         damping = state.damping_factor if lm else jnp.zeros((), y0.dtype)
         return _adapter_solution(
-            problem, y0, args, params, result, state.iter_num, state.delta, damping, self.max_steps
+            problem, y0, args, params, result, state.iter_num, state.delta, damping, self.max_steps,
+            it.state.user & ~(state.error <= tol),
         )

@@ -9,7 +9,9 @@ forward-mode one follows the iterations rather than the answer. At a minimizer `
 which :func:`attach_minimizer` attaches to the solver's answer as its JVP (``jax.grad`` transposes
 it). ``H`` is the exact Hessian (``jax.hessian`` of ``F``, second-order residual terms included),
 and the system is solved in the least-squares sense with the pseudo-inverse, so a minimizer that is
-not unique (a redundant IK chain without regularization) gets the minimum-norm derivative. With
+not unique (a redundant IK chain without regularization) gets the minimum-norm derivative (which
+the solver's own answer need not follow: where it lands on the set of minimizers depends on the start;
+a regularization makes the minimizer unique). With
 bounds, the variables at a bound stay there (``\dot y_i = 0``) and the system is solved for the
 others. The primal value is returned unchanged, and the rule costs nothing unless differentiated.
 """
@@ -25,6 +27,9 @@ import jax.numpy as jnp
 from ._linalg import matmul
 
 __all__ = ["attach_minimizer", "stop_gradient_arrays"]
+
+#: The pseudo-inverse's cut, relative to the Hessian's largest eigenvalue.
+_RANK_RTOL = 1e-10
 
 
 def stop_gradient_arrays(tree):
@@ -61,6 +66,8 @@ def _attach_jvp(primals, tangents, *, objective):
         free = (y > lower) & (y < upper)
         H = jnp.where(free[:, None] & free[None, :], H, jnp.eye(y.shape[0], dtype=H.dtype))
         b = jnp.where(free, b, 0.0)
-    dy = -matmul(jnp.linalg.pinv(H, hermitian=True), b)
+    # eigenvalues below 1e-10 of the largest are rounding (a redundant chain's null space): the default cut
+    # (n eps) inverted them into a derivative of noise
+    dy = -matmul(jnp.linalg.pinv(H, rtol=_RANK_RTOL, hermitian=True), b)
     # a factor, not a where: the rule must stay linear in the tangents for jax.grad to transpose it
     return y, dy * jnp.where(converged, 1.0, jnp.nan).astype(dy.dtype)

@@ -136,7 +136,11 @@ def least_squares(
     Returns:
         A :class:`Solution` ``(value [n], result, stats)``; see :class:`~solvers.Solution` for the
         statistics. ``value`` is never NaN when ``y0`` is finite: on ``RESULTS.nonfinite`` it is
-        the last finite iterate.
+        the last finite iterate. ``value`` carries the implicit derivative of the minimizer with
+        respect to ``args`` (``jax.grad`` and ``jax.jvp`` through the solve; the loop itself is not
+        differentiated). Where the solve did not reach a minimizer, that derivative is NaN: a result
+        other than ``successful``, or ``stop`` ending it before the solver's own criterion held
+        (``stats["stopped_early"]``).
 
     Raises:
         ValueError: ``y0`` is not 1-D, ``bounds`` do not match ``y0`` or ``lower > upper``,
@@ -213,7 +217,7 @@ def _least_squares(fn, jac, solver, y0, args, lower, upper, stop, throw) -> Solu
         sol = _run(solver, problem, problem.project(y0), solve_args)
     residual = (lambda y, a: fn(y, a)[0]) if jac is True else fn
     value = attach_minimizer(sol.value, lambda y, a: 0.5 * jnp.sum(residual(y, a) ** 2), args, lower, upper,
-                             converged=sol.result == RESULTS.successful)
+                             converged=(sol.result == RESULTS.successful) & ~sol.stats["stopped_early"])
     sol = eqx.tree_at(lambda s: s.value, sol, value)
     if throw:
         sol = eqx.tree_at(

@@ -266,6 +266,7 @@ class _Loop(eqx.Module):
     state: _State
     stop: Bool[Array, ""]  # the solver's (or the user's) test says the solve ends here
     result: RESULTS  # how it ends, when `stop`
+    early: Bool[Array, ""]  # the user's test holds here and the solver's own does not
 
 
 def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array, " n"], args: PyTree) -> Solution:
@@ -284,17 +285,19 @@ def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array,
 
     def loop(y, state) -> _Loop:
         stop, result = solver.terminate(problem, y, args, state)
+        early = jnp.array(False)
         if problem.stop is not None:  # the user's criterion: good enough, stop here as converged
             user = jnp.asarray(problem.stop(y, state.r, args), bool)
+            early = user & ~(stop & (result == RESULTS.successful))
             stop, result = stop | user, RESULTS.where(user, RESULTS.successful, result)
-        return _Loop(y=y, state=state, stop=stop, result=result)
+        return _Loop(y=y, state=state, stop=stop, result=result, early=early)
 
     def step(c: _Loop) -> _Loop:
         return loop(*solver.step(problem, c.y, args, c.state))
 
     # the loop's first iteration is the initial linearization: one step more, not counted
     init = _Loop(y=y0, state=solver.init_placeholder(problem, y0, args), stop=jnp.array(False),
-                 result=RESULTS.successful)
+                 result=RESULTS.successful, early=jnp.array(False))
     it = iterate(
         step,
         init,
@@ -311,5 +314,6 @@ def _run(solver: AbstractLeastSquaresSolver, problem: _Problem, y0: Float[Array,
     value, stats = solver.postprocess(problem, c.y, args, c.state, result)
     history = it.history[1:]
     history = jnp.where(jnp.isfinite(history), history, jnp.inf)
-    stats = dict(stats, num_steps=jnp.maximum(it.num_steps - 1, 0), cost_history=history)
+    stats = dict(stats, num_steps=jnp.maximum(it.num_steps - 1, 0), cost_history=history,
+                 stopped_early=c.early & (result == RESULTS.successful))
     return Solution(value=value, result=result, stats=stats)

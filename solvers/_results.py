@@ -70,6 +70,9 @@ class Solution(eqx.Module):
             - ``cost_history``: ``[max_steps + 1]``; entry ``k`` is the cost after ``k``
               iterations (entry 0 is the initial cost), padded with the final cost after the
               last iteration.
+            - ``stopped_early`` (bool): the user's ``stop`` ended the solve before the solver's own
+              criterion held, so ``value`` is not a minimizer: its derivative is NaN (see
+              :func:`solvers.least_squares`).
     """
 
     value: Float[Array, " n"]

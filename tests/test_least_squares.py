@@ -686,7 +686,8 @@ def test_gradient_descent_linear_matches_lstsq_adaptive_and_fixed():
     assert hist.shape == (_GD_TIGHT["max_steps"] + 1,)
     # the approximate Armijo test accepts steps whose cost change is rounding noise
     assert np.all(np.diff(hist) <= 8 * np.finfo(float).eps * hist[:-1]), "the cost never increases beyond rounding"
-    assert set(adaptive.stats) == {"num_steps", "cost", "grad_norm", "step_norm", "damping", "cost_history"}
+    assert set(adaptive.stats) == {"num_steps", "cost", "grad_norm", "step_norm", "damping", "cost_history",
+                                  "stopped_early"}
     assert float(adaptive.stats["damping"]) == 0.0
     assert float(adaptive.stats["grad_norm"]) <= 1e-10
 

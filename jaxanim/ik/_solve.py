@@ -297,7 +297,9 @@ def solve_ik(
             criterion, as in closed-loop IK; any solver, the optimistix and jaxopt adapters
             included: they check it on each accepted iterate). ``False``: solve the regularized
             least-squares problem to the solver's own tolerances (slow when the regularizer is weak
-            and the task leaves many directions free: the minimum is then very flat).
+            and the task leaves many directions free: the minimum is then very flat). A solve that
+            stopped at the tolerance before a minimizer has a NaN derivative (``jax.grad``): to
+            differentiate, give a ``regularization``.
         throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
 
     Returns:
