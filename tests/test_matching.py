@@ -439,3 +439,31 @@ def test_benchmark_reduced_run():
     assert {"numpy brute force (BLAS)", "jaxanim matching.search (vmap)"} <= set(rows)
     for name in ("numpy brute force (BLAS)", "jaxanim matching.search (vmap)"):
         assert rows[name].measured and rows[name].success == 1.0, name
+    faiss = rows["faiss IndexFlatL2 (exact)"]  # measured where faiss imports, else a row saying why not
+    assert faiss.is_peer and (faiss.measured and faiss.dtype == "float32" and faiss.success == 1.0
+                              or faiss.skipped is not None and "faiss" in faiss.skipped), faiss
+    # without a float32 row the speed target falls back to the chunked NumPy brute force, in float64
+    (speed, _) = search.targets
+    assert "chunked NumPy" in speed.text and "float64" in speed.text, speed.text
+
+
+def test_benchmark_chunked_numpy_search_is_one_argmin():
+    """The benchmark's chunked NumPy peer equals one argmin over the whole distance array, for chunks and query
+    blocks that do not divide the sizes, with a tie across chunks (the first row wins) and masked rows."""
+    from benchmarks.matching import _numpy_search
+
+    rng = np.random.default_rng(1)
+    X = rng.standard_normal((1000, 8))
+    X[700] = X[3]
+    ok = rng.random(1000) > 0.1
+    ok[[3, 700]] = True
+    sq = np.where(ok, (X * X).sum(1), np.inf)
+    Q = rng.standard_normal((50, 8))
+    Q[0] = X[3]
+    full = sq[None] - 2 * Q @ X.T
+    want = full.argmin(1)
+    for queries, rows in ((7, 64), (50, 999), (1024, 8192)):
+        idx, dist = _numpy_search(X, sq, Q, queries, rows)
+        np.testing.assert_array_equal(idx, want)
+        np.testing.assert_allclose(dist, full[np.arange(len(Q)), want] + (Q * Q).sum(1), rtol=1e-12, atol=1e-12)
+    assert idx[0] == 3 and ok[idx].all()
