@@ -1,9 +1,11 @@
 """``jaxanim skin`` (issue 15) and a reduced run of the ``skinning`` benchmark.
 
 The commands run in-process through ``main([...])``. Their output is checked against the benchmark's
-vectorised NumPy LBS / DQS (``benchmarks.skinning``, written apart from jaxanim's kernels; test_skinning
-checks those against per-vertex loops). Compiled shapes: the shipped walk (120 frames, LBS, float64), a
-4-frame cut of it (DQS float32; LBS with a 250-vertex mesh) and the benchmark's two tiny kernels.
+vectorised NumPy LBS / DQS (``benchmarks.skinning``, written apart from jaxanim's kernels; its DQS is jaxanim's
+formulation, checked here against ``skin_motion`` to round-off on poses whose blends need flips; test_skinning
+checks jaxanim's kernels against per-vertex loops). Compiled shapes: the shipped walk (120 frames, LBS,
+float64), a 4-frame cut of it (DQS float32; LBS with a 250-vertex mesh), 5 random poses (DQS, 250 vertices,
+K = 3) and the benchmark's two tiny kernels.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from .helpers import assert_close, quick_bench_config
 
 _ATOL_CLI64 = 1e-12  # float64 command output vs the NumPy skinning (m)
 _ATOL_CLI32 = 2e-5  # --float32
+_ATOL_PEER = 1e-10  # the benchmark's NumPy DQS vs skin_motion's, float64 (m): the same formulation, so round-off
 
 
 def _run(capsys, *argv) -> tuple[int, str, str]:
@@ -156,6 +159,33 @@ def test_skin_bad_input(tmp_path, capsys, short_clip, small_mesh):
     msg = _error(capsys, "skin", path, "--mesh", d / "m.obj", "--radius", "0.1")
     assert "--radius sizes the procedural capsule mesh" in msg
     assert not (tmp_path / "o.npz").exists()
+
+
+def test_numpy_dqs_is_jaxanims_formulation(walk, small_mesh):
+    """The benchmark's NumPy DQS (the skinning table's peer) computes what ``skin_motion``'s DQS computes: equal to
+    round-off on random local rotations, where many (largest-weight joint, joint) pairs are antipodal and the blend
+    must flip them, with random weights, a fifth of them tied for the largest (the pivot is the first of a tie)."""
+    skel = walk[0]
+    mesh = small_mesh[1]
+    rng = np.random.default_rng(3)
+    V, J, K, F = mesh.num_vertices, skel.num_joints, 3, 5
+    joints = np.stack([rng.choice(J, K, replace=False) for _ in range(V)])
+    weights = rng.uniform(0.1, 1.0, (V, K))
+    weights[::5, 1] = weights[::5, 0]
+    weights /= weights.sum(axis=1, keepdims=True)
+    w = skinning.SkinWeights(joints, weights)
+    q = rng.normal(size=(F, J, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    trans = np.repeat(np.asarray(skel.offsets, np.float64)[None], F, axis=0)
+    trans[:, 0] = rng.normal(size=(F, 3))
+    motion = jaxanim.Motion(q, trans, 1 / 30)
+    # the rest pose's global rotations are the identity, so these are the skinning rotations' quaternions
+    r = np.asarray(jaxanim.rotations.matrix_to_quat(jaxanim.forward_kinematics(skel, q[0], trans[0]).rotations))
+    pivot = joints[np.arange(V), np.argmax(weights, axis=1)]
+    assert np.any(np.einsum("vq,vkq->vk", r[pivot], r[joints]) < 0), "no pair needs a flip"
+    want = np.asarray(skinning.skin_motion(skel, motion, mesh, w, "dqs"))
+    assert_close("numpy_dqs vs skin_motion (DQS)", _numpy("dqs", skel, motion, mesh.vertices, w), want,
+                 atol=_ATOL_PEER)
 
 
 def test_skin_help_mentions_the_obj_sequence(capsys):
