@@ -136,7 +136,7 @@ REGISTRY: dict[str, BenchmarkSpec] = {s.name: s for s in (
     BenchmarkSpec("physics", "benchmarks.physics:run_physics",
                   "~20-body character standing under PD control: jaxanim (penalty, complementarity), MuJoCo C, MJX"),
     BenchmarkSpec("tracking", "benchmarks.tracking:run_tracking",
-                  "SAMCON tracking of the shipped walk: samples/s vs MuJoCo C rollouts of the batch, time to track 4 s"),
+                  "SAMCON tracking of the shipped walk: samples/s (MuJoCo C rollouts as a reference), time to track 4 s"),
     BenchmarkSpec("matching", "benchmarks.matching:run_matching",
                   "motion matching: search of 1024 agents x 100k frames vs cKDTree and numpy; a 1024-agent crowd"),
     BenchmarkSpec("skinning", "benchmarks.skinning:run_skinning",

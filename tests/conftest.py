@@ -57,7 +57,7 @@ def pytest_configure(config):
 #: heaviest first. xdist's --dist loadfile hands files out in collection order, so a long file collected
 #: last (test_tracking, about 350 s, sorts near the end) would start when the other worker is nearly
 #: done and set the wall time alone; scheduled first, the other files fill the second worker around it.
-_HEAVY_FIRST = ("test_tracking.py", "test_ik.py", "test_robots_retarget.py", "test_balance.py",
+_HEAVY_FIRST = ("test_tracking.py", "test_tracking_jump.py", "test_ik.py", "test_robots_retarget.py", "test_balance.py",
                 "test_least_squares.py", "test_torque_limits.py", "test_ik_limits.py", "test_cli_simulate.py",
                 "test_ilqr.py")
 

@@ -1,13 +1,15 @@
 """Tracking without root force (jaxanim.tracking: samcon, feedback; ``jaxanim track``), issue 13.
 
 One small search shape is compiled for the whole file: the shipped walk's first 2 s, 20 windows of
-0.1 s, 32 samples, 8 elites and the per-joint spreads of joint_sigma; the CLI runs the same. What is
+0.1 s, 64 samples, 8 elites and the per-joint spreads of joint_sigma; the CLI and the demo run the
+same. It tracks within absolute bounds (mean joint error, mean horizontal root error). What is
 checked against an independent reference: the search beats the clip's own uncorrected stable-PD
 targets (the open-loop baseline, the same simulator) on the tracking cost; the replay of the kept
 corrections reproduces the cost the search recorded (the simulation is deterministic); vmap over
 seeds equals a loop (on a 4-joint character, cheaper to compile); the linearization of a frame
 equals central finite differences of the public ``physics.step``; with the LQR gains a 100 N push
-on the torso at mid-clip does not fell the character, while the open-loop corrections alone fall.
+on the torso at mid-clip, forward or backward, does not fell the character with the default
+weights, while forward the open-loop corrections alone fall (the README's claim, in a reduced run).
 """
 
 from __future__ import annotations
@@ -30,11 +32,13 @@ from jaxanim.physics import make_ground
 from .helpers import small_skeleton
 
 FRAMES = 61  # 2 s at 30 fps: 20 windows
+SAMPLES = 64  # the demo's (jaxanim.app._demo): 32 left the gains too weak for the default weights
+JOINT_BOUND, ROOT_BOUND = 0.16, 0.15  # absolute bounds of this run (rad, m; measured 0.148 and 0.122): the README
 
 
 def _options(char):
-    """The options of every search here, the CLI's for --samples 32 (one compiled program)."""
-    return tracking.tracking_options(char, 1 / 30, 32)
+    """The options of every search here, the CLI's for --samples 64 (one compiled program)."""
+    return tracking.tracking_options(char, 1 / 30, SAMPLES)
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +79,9 @@ def test_search_beats_the_uncorrected_targets_and_replays_exactly(problem, resul
         root_error=result.root_error, window_cost=result.window_cost, status=result.status, options=result.options))
     assert float(jnp.sum(result.window_cost)) < 0.8 * float(jnp.sum(zero.window_cost))
     again = tracking.replay(char, ref, result)
-    np.testing.assert_allclose(np.asarray(again.window_cost), np.asarray(result.window_cost), rtol=1e-9)
+    # the search's rollouts are batched (vmap over the samples) and the replay's is one: XLA rounds the two
+    # differently, and 2 s of contact amplify it (at 32 samples they agreed to 1e-9, at 64 to 7e-7)
+    np.testing.assert_allclose(np.asarray(again.window_cost), np.asarray(result.window_cost), rtol=1e-5)
     assert not bool(result.fell) and float(result.root_error[-1]) < float(zero.root_error[-1])
 
 
@@ -144,13 +150,10 @@ def linearization(problem, result):
 
 @pytest.fixture(scope="module")
 def controlled(problem, result, linearization):
-    """The gains of this file's small search (2 s, 32 samples), with the LQR weights that hold its
-    push: the defaults (w_position 3, w_control 300) were picked on the acceptance run's 4 s, 256
-    sample trajectory, and on this one they do not hold it; the gains' reach depends on the
-    trajectory (the README says so). Same program as the defaults' (the weights are arrays)."""
+    """The gains of this file's small search (2 s, 64 samples) with the default LQR weights (picked on
+    the acceptance run's 4 s, 256-sample trajectory; on a 32-sample search they did not hold the push)."""
     char, ref, _ = problem
-    weights = tracking.FeedbackOptions(w_position=100.0, w_control=1000.0)
-    return tracking.feedback(char, ref, result, weights, linearization=linearization)
+    return tracking.feedback(char, ref, result, linearization=linearization)
 
 
 def _frame(char, ref, state, f, correction, u):
@@ -197,7 +200,7 @@ def test_linearization_equals_finite_differences_of_physics_step(problem, result
 
 
 def _push(char, ref, newtons):
-    """A forward push on the torso for 0.2 s at mid-clip (1 s)."""
+    """A push on the torso for 0.2 s at mid-clip (1 s), forward (``newtons > 0``) or backward."""
     v = np.asarray(ref.states.linear_velocity[:, character.root_body(char)]).mean(axis=0) * np.array([1.0, 0.0, 1.0])
     return tracking.torso_body(char), newtons * v / np.linalg.norm(v), 1.0, 0.2
 
@@ -211,10 +214,11 @@ def test_feedback_holds_a_push_that_fells_the_open_loop_controls(problem, result
     still = tracking.replay(char, ref, controlled)  # no push: the state stays on the trajectory, u = 0
     np.testing.assert_allclose(np.asarray(still.trajectory.position), np.asarray(result.trajectory.position),
                                atol=1e-9)
-    push = _push(char, ref, 100.0)
-    open_loop = tracking.replay(char, ref, controlled, push=push, feedback=False)
-    closed = tracking.replay(char, ref, controlled, push=push)
-    assert bool(open_loop.fell) and not bool(closed.fell)
+    forward, backward = _push(char, ref, 100.0), _push(char, ref, -100.0)
+    assert bool(tracking.replay(char, ref, controlled, push=forward, feedback=False).fell)
+    assert not bool(tracking.replay(char, ref, controlled, push=forward).fell)
+    # backward the walk's own momentum helps: the open-loop corrections stand it too, and so do the gains
+    assert not bool(tracking.replay(char, ref, controlled, push=backward).fell)
 
 
 def test_bad_input(problem, result):
@@ -268,13 +272,15 @@ def test_track_command(problem, result, linearization, tmp_path, capsys, monkeyp
 
     monkeypatch.setattr(_feedback, "_linearize_jit", linearize)
     out = tmp_path / "walk.track.bvh"
-    code, stdout, stderr = _run(capsys, "track", "--seconds", 2, "--samples", 32, "--push", 100, "--out", out)
+    code, stdout, stderr = _run(capsys, "track", "--seconds", 2, "--samples", SAMPLES, "--push", 100, "--out", out)
     assert code == 0, stderr  # the search of the `result` fixture (seed 0), which stands
     assert "window 20/20" in stderr and "samples/s" in stdout and "mean joint error" in stdout
     assert "tracking successful" in stdout
-    # the outcome with the default weights is the acceptance run's to check (test_tracking_acceptance)
-    assert re.search(r"push 100 N forward on the torso \(Chest\) for 0\.2 s at 1\.00 s: open-loop controls fell, "
-                     r"with the feedback gains (fell|stood)", stdout), stdout
+    assert ("push 100 N forward on the torso (Chest) for 0.2 s at 1.00 s: open-loop controls fell, "
+            "with the feedback gains stood") in stdout, stdout
+    joint = float(re.search(r"mean joint error ([0-9.]+) rad", stdout).group(1))
+    root = float(re.search(r"mean horizontal root error ([0-9.]+) m", stdout).group(1))
+    assert joint <= JOINT_BOUND and root <= ROOT_BOUND, stdout  # the README's figures for this run
     skel, motion = jaxanim.read_bvh(out)
     assert motion.num_frames == FRAMES and skel.num_joints == 21 and abs(float(motion.frame_time) - 1 / 30) < 1e-9
     for argv, message in (
@@ -289,7 +295,7 @@ def test_track_command(problem, result, linearization, tmp_path, capsys, monkeyp
 
 
 def test_benchmark_reduced_run(problem):
-    """``python -m benchmarks tracking`` at batch 32, 20 windows per call: this file's search program
+    """``python -m benchmarks tracking`` at batch 64 (``SAMPLES``), 20 windows per call: this file's search program
     (the persistent compilation cache serves it). Timings are not checked; the rows, their units and
     the MuJoCo peer rows are. The walk table (4 s at 256 samples, then the gains: minutes) is left to
     the benchmark run."""
@@ -302,21 +308,26 @@ def test_benchmark_reduced_run(problem):
 
     assert REGISTRY["tracking"].load() is run_tracking
     config = dataclasses.replace(quick_bench_config(), batches=None)  # the sizes' batch, not the config's
-    tables = run_tracking(config, TrackingSizes(batches=(32,), windows_per_call=20, walk_seconds=0.0))
+    tables = run_tracking(config, TrackingSizes(batches=(SAMPLES,), windows_per_call=20, walk_seconds=0.0))
     table, rows = bench_rows(tables, "tracking")
     text = render_table(table)
     assert [t.name for t in tables] == ["tracking"] and "failed:" not in text, text
     steps = (3 + 6) * 4  # (window + look-ahead frames) x steps per frame, per sample
-    own = rows[("jaxanim tracking.samcon", 32)]
-    assert own.chars_per_call == 20 * 32 * steps and own.success == 1.0 and 0.0 < own.accuracy < 0.3
-    assert rows[("MuJoCo C rollout.rollout", 32)].chars_per_call == 32 * steps
-    assert rows[("MuJoCo C mj_step (Python loop)", 32)].chars_per_call == 2 * steps  # the quick loop cap
+    own = rows[("jaxanim tracking.samcon", SAMPLES)]
+    assert own.chars_per_call == 20 * SAMPLES * steps and own.success == 1.0 and 0.0 < own.accuracy < 0.3
+    assert rows[("MuJoCo C rollout.rollout", SAMPLES)].chars_per_call == SAMPLES * steps
+    assert rows[("MuJoCo C mj_step (Python loop)", SAMPLES)].chars_per_call == 2 * steps  # the quick loop cap
     assert "samples/s" in own.note and "- Target: search compile ≤ 30 s: worst jaxanim tracking.samcon" in text
+    # MuJoCo holds identical characters at rest with springs, no search: a reference for the cost of a step, not
+    # a peer, so nothing ranks the search against it (no × best peer, no target)
+    mujoco = [r for r in table.rows if r.implementation.startswith("MuJoCo C")]
+    assert len(mujoco) == 2 and not any(r.is_peer for r in mujoco) and "Best peer per batch" not in text
+    assert all(t.versus is None for t in table.targets) and "not a peer" in table.description
 
 
 def test_demo_tour(problem, result, tmp_path, capsys):
     """``jaxanim demo``: every step runs and writes its picture. It is here, not in test_cli.py, because
-    its tracking step (2 s at 32 samples) is this file's search: the compiled program of the ``result``
+    its tracking step (2 s at 64 samples) is this file's search: the compiled program of the ``result``
     fixture serves it, and the simulation is deterministic, so it reproduces that search's errors."""
     pytest.importorskip("matplotlib", reason="matplotlib is not installed (the plot extra)")
     out_dir = tmp_path / "new" / "demo"
