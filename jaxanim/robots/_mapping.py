@@ -32,6 +32,7 @@ import os
 from collections.abc import Mapping as MappingABC
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -214,6 +215,21 @@ def _heading(p_src, src_root, src, p_rob, rob_root, rob) -> np.ndarray:
     return np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
 
 
+@eqx.filter_jit
+def _zero_pose_feet(robot: Robot, bodies: tuple[int, ...], rows: tuple[int, ...], points: tuple[tuple[int, ...], ...]):
+    """The zero pose's frames of the foot targets and each foot's surface points and their heights, in one
+    compiled program (op by op, with a compile per operation, they took seconds)."""
+    dtype = robot.qpos0.dtype
+    R_world, p_world, *_ = _kinematics(robot, robot.qpos0, dtype)
+    frames = _target_frames(robot, R_world, p_world, list(bodies), list(rows), dtype)
+    return frames, tuple(_surface(robot, R_world, p_world, idx, dtype) for idx in points)
+
+
+_rest_fk = eqx.filter_jit(skeleton_fk)
+#: Rotation matrices to canonical quaternions, compiled (op by op it compiled each operation per new shape).
+_canonical_quat = jax.jit(lambda R: rot.quat_canonical(rot.matrix_to_quat(R)))
+
+
 def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], ...], np.ndarray, np.ndarray]:
     """Each foot target standing flat: ``(points, R [F, 3, 3], height [F])``.
 
@@ -224,18 +240,21 @@ def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], .
     plants its soles flat, and one that stands on level soles (the G1) keeps its zero pose. ``height``
     is the target's height above the lowest point of the levelled foot (m).
     """
-    dtype = robot.qpos0.dtype
-    R_world, p_world, *_ = _kinematics(robot, robot.qpos0, dtype)
-    p_zero, R_zero = (np.asarray(x, np.float64) for x in _target_frames(robot, R_world, p_world, bodies, rows, dtype))
     below = _tree.subtree(robot.body_parents)
-    points, flat, heights = [], [], []
-    for k, body in enumerate(bodies):
+    points = []
+    for body in bodies:
         idx = tuple(i for i, b in enumerate(robot.point_bodies) if below[body, b])
         if not idx:
             raise JaxanimError(f"robot: the foot {robot.body_names[body]!r} has no collision geometry (sphere, capsule, "
                                "box, cylinder or ellipsoid) on it or below it, so its sole and the ground cannot be "
                                "found")
-        world, h = (np.asarray(x, np.float64) for x in _surface(robot, R_world, p_world, idx, dtype))
+        points.append(idx)
+    (p_zero, R_zero), surfaces = _zero_pose_feet(robot, tuple(int(b) for b in bodies), tuple(int(r) for r in rows),
+                                                 tuple(points))
+    p_zero, R_zero = np.asarray(p_zero, np.float64), np.asarray(R_zero, np.float64)
+    flat, heights = [], []
+    for k, idx in enumerate(points):
+        world, h = (np.asarray(x, np.float64) for x in surfaces[k])
         radius = world[:, 2] - h
         xy = world[:, :2] - world[:, :2].mean(axis=0)
         slope = np.linalg.lstsq(xy, h - h.mean(), rcond=1e-9)[0]
@@ -245,7 +264,6 @@ def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], .
             axis = np.cross(n, [0.0, 0.0, 1.0])
             level = np.asarray(rot.rotvec_to_matrix(jnp.asarray(axis / np.linalg.norm(axis) * np.arccos(n[2]))))
         levelled = (world - p_zero[k]) @ level.T  # about the target, which the levelling does not move
-        points.append(idx)
         flat.append(level @ R_zero[k])
         heights.append(-float(np.min(levelled[:, 2] - radius)))
     return tuple(points), np.stack(flat) if flat else np.zeros((0, 3, 3)), np.asarray(heights)
@@ -267,7 +285,7 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
     src_root = _source_index(skeleton, "root.source", mapping.root_source)
     tgt = [_target_row(robot, f"pairs[{i}].target", n) for i, n in enumerate(mapping.targets)]
     tgt_root = _target_row(robot, "root.target", mapping.root_target)
-    rest = skeleton_fk(skeleton, skeleton.rest_rotations(), skeleton.offsets)
+    rest = _rest_fk(skeleton, skeleton.rest_rotations(), skeleton.offsets)
     zero = forward_kinematics(robot, robot.qpos0)
     p_rob = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])
     R_rob = np.concatenate([np.asarray(zero.xmat, np.float64), np.asarray(zero.site_xmat, np.float64)])
@@ -288,13 +306,9 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
     feet = [i for i, foot in enumerate(mapping.feet) if foot]
     R_pair = R_rob[tgt]
     R_pair[feet] = _standing_feet(robot, _targets(robot, [mapping.targets[i] for i in feet])[0], [tgt[i] for i in feet])[1]
-    offsets = []
-    for i in range(mapping.num_pairs):
-        if mapping.given_offsets[i]:
-            offsets.append(given[i])
-        else:
-            M = R_src[src[i]].T @ R_pair[i]
-            offsets.append(np.asarray(rot.quat_canonical(rot.matrix_to_quat(jnp.asarray(M)))))
+    M = np.swapaxes(R_src[src], -1, -2) @ R_pair  # each pair's offset, computed in one call
+    computed = np.asarray(_canonical_quat(jnp.asarray(M)), np.float64)
+    offsets = [given[i] if mapping.given_offsets[i] else computed[i] for i in range(mapping.num_pairs)]
     dtype = robot.qpos0.dtype
     return Calibration(axes=jnp.asarray(axes, dtype), scale=jnp.asarray(scale, dtype),
                        offset=jnp.asarray(np.stack(offsets), dtype))

@@ -26,7 +26,7 @@ from ..kinematics._contacts import true_runs, detect_foot_contacts
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
 from ._kinematics import _targets
-from ._mapping import Calibration, RetargetMap, _standing_feet, calibrate, load_mapping
+from ._mapping import Calibration, RetargetMap, _canonical_quat, _standing_feet, calibrate, load_mapping
 from ._robot import Robot
 from ._tangent import _free_joint
 
@@ -115,8 +115,12 @@ def _rot_z(angle: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+#: Compiled (op by op it compiled its operations on every new shape).
+_quat_to_matrix = jax.jit(rot.quat_to_matrix)
+
+
 def _quat(R: np.ndarray) -> np.ndarray:
-    return np.asarray(rot.quat_canonical(rot.matrix_to_quat(jnp.asarray(R))), np.float64)
+    return np.asarray(_canonical_quat(jnp.asarray(R)), np.float64)
 
 
 def _with_root(mapping: RetargetMap) -> RetargetMap:
@@ -187,7 +191,7 @@ def prepare_retarget(
         raise JaxanimError(f"length: {length} is shorter than the clip ({T} frames)")
     axes = np.asarray(calib.axes, np.float64)
     src = [skeleton.names.index(n) for n in full.sources]
-    fk = jax.vmap(lambda q, t: skeleton_fk(skeleton, q, t))(motion.rotations, motion.translations)
+    fk = _clip_fk(skeleton, motion.rotations, motion.translations)
     P = np.asarray(fk.positions, np.float64)[:, src] @ axes.T  # [T, K, 3] in the robot's axes
     R = axes @ np.asarray(fk.rotations, np.float64)[:, src]  # [T, K, 3, 3]
     R_target = R @ _rot_matrices(offsets)
@@ -238,8 +242,14 @@ def prepare_retarget(
         axes=jnp.asarray(axes, dtype), ground=jnp.asarray(ground, dtype))
 
 
+@eqx.filter_jit
+def _clip_fk(skeleton: Skeleton, rotations, translations):
+    """Every frame's forward kinematics, one compiled program (op by op it took seconds per clip length)."""
+    return jax.vmap(lambda q, t: skeleton_fk(skeleton, q, t))(rotations, translations)
+
+
 def _rot_matrices(quats: np.ndarray) -> np.ndarray:
-    return np.asarray(rot.quat_to_matrix(jnp.asarray(quats)), np.float64)
+    return np.asarray(_quat_to_matrix(jnp.asarray(quats)), np.float64)
 
 
 def stack_problems(problems: Sequence[RetargetProblem]) -> RetargetProblem:
