@@ -171,7 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     config.log(f"running {names} ({settings['mode']}), report -> {args.out}")
     write = _writer(args.out, env, command, settings)
     write([])  # the header at once: the file names the device and versions before the first row
-    run_benchmarks(names, config, command, budgets=budgets, write=write, total_s=total_s)
+    run_benchmarks(names, config, command, budgets=budgets, write=write, total_s=total_s, rerun_busy=not args.quick)
     config.log(f"wrote {args.out}")
     return 0
 

@@ -287,3 +287,25 @@ def test_the_issues_accelerator_targets_judge_their_rows():
     (walk,) = tracking._accelerator_walk_targets(4.0, 1024)
     assert judge(walk, [row(tracking._TOTAL, 3.9e6, batch=1)]).endswith("met.")
     assert judge(walk, [row(tracking._TOTAL, 4.1e6, batch=1)]).endswith("missed.")
+
+
+def test_a_section_shared_with_other_processes_runs_again(monkeypatch):
+    """Issue 31, item 2: a section during which other processes kept more than ``OTHERS_MAX`` cores busy runs once
+    more (with ``rerun_busy``, as the command line's full runs do), and the report says what both runs shared."""
+    import benchmarks
+
+    assert benchmarks._others((10.0, 1.0), (14.0, 2.0), 2.0) == 1.5  # 4 s busy, 1 s of them this process's, in 2 s
+    assert benchmarks._others(None, (1.0, 1.0), 1.0) is None
+    busy, own = benchmarks._cpu_seconds()
+    assert busy > 0 and own > 0
+    calls, shares = [], iter([1.2, 0.1])
+    monkeypatch.setattr(benchmarks, "_others", lambda *a: next(shares))
+    monkeypatch.setitem(REGISTRY, "twice", types.SimpleNamespace(
+        name="twice", description="twice", load=lambda: lambda config: calls.append(1) or [Table("twice", "Twice")]))
+    (table,) = run_benchmarks(["twice"], BenchConfig(verbose=False), rerun_busy=True)
+    assert len(calls) == 2
+    assert "other processes used 0.10 cores on average meanwhile" in table.run
+    assert "this is a second run: during the first, other processes used 1.20 cores" in table.run
+    shares = iter([1.2])
+    (table,) = run_benchmarks(["twice"], BenchConfig(verbose=False))  # the default: measured once, and said
+    assert len(calls) == 3 and "1.20 cores on average meanwhile (above 0.5: they inflated every time)" in table.run
