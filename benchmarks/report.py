@@ -257,7 +257,7 @@ def collect_environment() -> dict[str, str]:
     env.update({d: _version(d) for d in ("jax", "jaxlib")})
     env.update(_jax_plugins())
     env.update({d: _version(d) for d in ("equinox", "optimistix", "numpy", "scipy", "jaxopt", "crocoddyl", "mujoco",
-                                         "mujoco-mjx")})
+                                         "mujoco-mjx", "mink", "daqp", "faiss-cpu")})
     env.update({"pin (Pinocchio)": _version("pin"), "x64": str(bool(jax.config.jax_enable_x64))})
     return env | ({"XLA_FLAGS": os.environ["XLA_FLAGS"]} if os.environ.get("XLA_FLAGS") else {})
 
@@ -265,7 +265,7 @@ def collect_environment() -> dict[str, str]:
 def render_report(env: dict[str, str], command: str, settings: dict[str, str], tables: Sequence[Table]) -> str:
     """The whole BENCHMARKS.md text: a header written by this run, then every section."""
     out = [
-        "# jaxanim benchmarks",
+        f"# jaxanim benchmarks: `{command}`",
         "",
         f"Written by one invocation of `{command}` (every section below ran in its process; each",
         "section ends with its own wall time and load). Run time is the median (min) of N calls after",
