@@ -349,6 +349,10 @@ def test_demo_tour(problem, result, tmp_path, capsys):
                  "no root force): stood", "LBS of all 120 frames", "DQS of all 120 frames",
                  "the clip beside its simulation without root force, 61 frames"):
         assert text in out, text
+    # "stood" by the demo's stated criterion (jaxanim.app._demo.STOOD_*), which this run meets (issue 32, item 3)
+    drop, joint = re.search(r"stood \(final root height ([0-9.]+) cm from the clip's, stood at most 5; mean joint "
+                            r"error ([0-9.]+) rad, stood at most 0.15\)", out).groups()
+    assert float(drop) <= 5.0 and float(joint) <= 0.15, out
     # the tracked clip: the search of the `result` fixture, replayed as BVH on the same skeleton
     assert f"mean joint error {float(np.asarray(result.joint_error[1:]).mean()):.3f} rad" in out
     skel, motion = jaxanim.read_bvh(out_dir / "demo_track.bvh")
