@@ -26,6 +26,7 @@ __all__ = ["ACCELERATOR_SIZES", "TrackingSizes", "run_tracking", "walk_problem"]
 _MJ_ROLLOUT = "MuJoCo C rollout.rollout"
 _MJ_LOOP = "MuJoCo C mj_step (Python loop)"
 _SEARCH = "jaxanim tracking.samcon"
+_STEP = "jaxanim: plain steps of the search's window"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,10 +96,17 @@ def _samples_table(config, sz: TrackingSizes) -> Table:
             "character in MuJoCo C, not a peer. They are not ranked against the search (no × best peer, no target "
             "on them), and a ratio of the search's µs / char to theirs is not a like-for-like speedup. Accuracy: the "
             "search's mean joint error over the tracked frames (the MuJoCo rows track nothing). What the search "
-            "adds to jaxanim's own step is this table's µs / char against the `physics` table's `jaxanim rollout "
-            "(complementarity:8)` rows (the step alone); where the step's time goes is in their profile "
-            "(`python -m benchmarks profile`: the level-by-level tree solve and the sequential PGS rows)."),
-        targets=[Target("search compile ≤ 30 s", sel(_SEARCH), 30.0, "compile", worst=True)]
+            f"adds to the plain step is the search's µs / char against the `{_STEP}` rows (issue 32's comparison): "
+            "`batch` samples simulated for one window and its look-ahead from the clip's first state with seeded "
+            "random corrections (0.1 rad), each frame's cost summed, by the search's own window function under "
+            "`jax.vmap`, with the same character, contacts and stable PD but without the torque bounds (whose "
+            "passes solve the constraints up to three times a step) and without the sampling, the elite selection "
+            "and the bookkeeping; where the step's time goes is in the `physics` table's profile (`python -m "
+            "benchmarks profile`: the level-by-level tree solve and the sequential PGS rows)."),
+        targets=[Target("search compile ≤ 30 s", sel(_SEARCH), 30.0, "compile", worst=True),
+                 Target(f"SAMCON search per character-step ≤ 1.5x the plain step at batch {max(batches)} "
+                        "(issue 32; speedup ≥ 0.667x)", sel(_SEARCH, batch=max(batches)), 1 / 1.5,
+                        versus=sel(_STEP, batch=max(batches)))]
         + ([Target("accelerator: SAMCON ≥ 20,000 samples/s at the best batch (≤ "
                    f"{50 / steps:.3g} µs per character-step)", sel(_SEARCH), 50 / steps)]
            if config.accelerator else []))
@@ -132,9 +140,24 @@ def _samples_table(config, sz: TrackingSizes) -> Table:
                        success=float(not bool(res.fell)),
                        note=f"{samples_per_s:.0f} samples/s; {opts.elites} elites; {W} windows per call")
 
+    def step_row(b: int) -> Row:
+        opts = tracking.tracking_options(char, float(ref.frame_time), b, torque_limit=None)  # no torque bounds
+        problem = _samcon._problem(char, ref, opts)
+        corrections = 0.1 * jax.random.normal(jax.random.PRNGKey(0), (b, problem.num_joints, 3), jnp.float64)
+
+        def physics_alone(corrections):
+            start = problem.start_state()
+            return jax.vmap(lambda c: problem.window(start, 0, c, None, opts.lookahead)[:2])(corrections)
+
+        (_, cost), tm, comp = run.jax(physics_alone, corrections)
+        return run.row(_STEP, "float64", b, tm, b * steps, comp, accuracy="n/a (no search)",
+                       note=f"{b} samples of one window and its look-ahead, unbounded stable PD; finite costs: "
+                            f"{float(np.mean(np.isfinite(np.asarray(cost)))) * 100:.0f} %")
+
     for b in batches:  # the MuJoCo rows are a reference, not peers: no × best peer is computed against them
         run.add(_MJ_LOOP, "float64", b, lambda b=b: mj_loop_row(b))
         run.add(_MJ_ROLLOUT, "float64", b, lambda b=b: mj_rollout_row(b))
+        run.add(_STEP, "float64", b, lambda b=b: step_row(b))
         run.add(_SEARCH, "float64", b, lambda b=b: jax_row(b))
     if any(r.implementation == _MJ_ROLLOUT and r.measured for r in table.rows):
         from mujoco import rollout as mj_rollout
@@ -147,6 +170,18 @@ def _accelerator_walk_targets(secs: float, samples: int) -> list[Target]:
     """Issue 29's target on one H200 (``--gpu`` on an accelerator): the search and the gains within 4 s."""
     return [Target(f"accelerator: the {secs:g} s clip tracked with {samples} samples, search and gains, ≤ 4 s wall "
                    "after compiling", sel(_TOTAL), 4e6)]
+
+
+def _cpu_walk_targets(secs: float, samples: int) -> list[Target]:
+    """Issue 32's targets for the tracked walk on this machine's CPU (the search's per-step target is the samples
+    table's)."""
+    return [
+        Target("feedback gains (linearize + LQR) ≤ 50 ms per frame (issue 32)",
+               sel("jaxanim tracking.feedback (linearize + LQR)"), 5e4),
+        Target(f"the {secs:g} s clip tracked with {samples} samples, search plus gains, ≤ 30 s after compiling "
+               "(issue 32)", sel(_TOTAL), 30e6),
+        Target("compiling the search and the gains ≤ 15 s (issue 32)", sel(_TOTAL), 15.0, metric="compile"),
+    ]
 
 
 def _walk_table(config, sz: TrackingSizes) -> Table:
@@ -165,7 +200,7 @@ def _walk_table(config, sz: TrackingSizes) -> Table:
             "horizontal root error and whether the character fell. No peer tracks a BVH clip without root force (the "
             "samples table's MuJoCo rows step characters held at rest by springs: a reference for the cost of a "
             "step, not a tracker)."),
-        targets=_accelerator_walk_targets(secs, n) if config.accelerator else [])
+        targets=_accelerator_walk_targets(secs, n) if config.accelerator else _cpu_walk_targets(secs, n))
     run = Runner(config, table)
     result: dict[str, tracking.TrackingResult] = {}
 
