@@ -201,8 +201,8 @@ def test_physics_character_and_tracking_state_highest():
     _assert_highest("tracking.replay", _lower(lambda r: tracking.replay(char, ref, r).window_cost, result))
     from jaxanim.tracking._feedback import _linearize
 
-    _assert_highest("tracking.linearize", _lower(lambda r: _linearize(char, ref, r.options, r.corrections, r.trajectory),
-                                                 result))
+    _assert_highest("tracking.linearize",
+                    _lower(lambda r: _linearize(char, ref, r.options, r.corrections, r.trajectory), result))
 
 
 def test_robots_state_highest():
