@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["LANES", "hoist_closure", "lane_map", "while_loop"]
+__all__ = ["LANES", "compacted_cond", "hoist_closure", "lane_map", "while_loop"]
 
 LANES = 128
 """Lanes of a compacted loop (a batch of at most this many runs as one plain vmapped loop).
@@ -149,6 +149,67 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
         return eqx.filter_jvp(fun_of, primals, tangents)
 
     return differentiable(*args, *consts)
+
+
+def compacted_cond(pred, true_fun: Callable[..., Any], false_fun: Callable[..., Any], *operands: Any,
+                   fraction: float = 0.125) -> Any:
+    """``lax.cond(pred, true_fun, false_fun, *operands)``, whose batched calls run ``true_fun`` only on
+    the rows whose ``pred`` holds.
+
+    Under ``vmap`` a ``lax.cond`` with a batched predicate runs both branches on every row and selects.
+    When ``true_fun`` is the expensive branch and few rows take it, the batched call here runs
+    ``false_fun`` on every row, gathers the rows whose predicate holds into chunks of
+    ``ceil(fraction * batch)`` rows (as many chunks as needed, one after another: a ``while_loop``
+    at one shape) and writes their ``true_fun`` results back in place. Each row's value is the
+    one-instance ``lax.cond``'s (up to round-off of the vector width). ``true_fun`` and
+    ``false_fun`` may close over batched values. Forward mode differentiates the plain ``lax.cond``;
+    other backends than the CPU take the plain vmapped ``lax.cond``.
+    """
+    t_of, t_consts = hoist_closure(true_fun, *operands)
+    f_of, f_consts = hoist_closure(false_fun, *operands)
+    n_ops, n_t = len(operands), len(t_consts)
+
+    def branches(a):
+        ops, tc, fc = a[:n_ops], a[n_ops:n_ops + n_t], a[n_ops + n_t:]
+        return (lambda o: t_of(*o, *tc)), (lambda o: f_of(*o, *fc)), ops
+
+    def plain(p, *a):
+        t, f, ops = branches(a)
+        return jax.lax.cond(p, t, f, ops)
+
+    routed = jax.custom_batching.custom_vmap(plain)
+
+    @routed.def_vmap
+    def _rule(axis_size: int, in_batched, p, *a):
+        axes = tuple(map(_axes, in_batched[1:]))
+        if not in_batched[0] or jax.default_backend() != "cpu":
+            out = jax.vmap(plain, in_axes=(0 if in_batched[0] else None, *axes))(p, *a)
+            return out, jax.tree.map(lambda _: True, out)
+        cap = max(1, int(np.ceil(fraction * axis_size)))
+        out = jax.vmap(lambda *x: branches(x)[1](branches(x)[2]), in_axes=axes)(*a)
+        count = jnp.sum(p)
+        order = jnp.concatenate([jnp.nonzero(p, size=axis_size, fill_value=axis_size)[0],
+                                 jnp.full((cap,), axis_size, jnp.int32).astype(jnp.int_)])
+        leaves, tree = jax.tree.flatten(a)
+        flags = jax.tree.leaves(in_batched[1:])
+
+        def body(c):
+            k, out = c
+            idx = jax.lax.dynamic_slice(order, (k * cap,), (cap,))
+            rows = [jnp.take(x, idx, axis=0, mode="clip") if f else x for x, f in zip(leaves, flags)]
+            res = jax.vmap(lambda *x: branches(x)[0](branches(x)[2]), in_axes=axes)(*jax.tree.unflatten(tree, rows))
+            return k + 1, jax.tree.map(lambda o, r: o.at[idx].set(r, mode="drop"), out, res)
+
+        _, out = jax.lax.while_loop(lambda c: c[0] * cap < count, body, (jnp.asarray(0, order.dtype), out))
+        return out, jax.tree.map(lambda _: True, out)
+
+    differentiable = eqx.filter_custom_jvp(lambda *a: routed(*a))
+
+    @differentiable.def_jvp
+    def _jvp(primals, tangents):
+        return eqx.filter_jvp(plain, primals, tangents)
+
+    return differentiable(pred, *operands, *t_consts, *f_consts)
 
 
 def _axes(batched_tree):

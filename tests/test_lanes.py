@@ -2,7 +2,8 @@
 ``lax.while_loop`` element by element (and the one-instance loop), in input order, with
 per-element trip counts, batched and shared closed-over data (also integers), a batch that is not
 a multiple of the lanes, nested vmap and forward mode; and the solvers that run on it (the
-iteration driver, DARE, iLQR) give each problem the result it gets alone."""
+iteration driver, DARE, iLQR) give each problem the result it gets alone. ``compacted_cond`` (the true branch
+run only on the rows that take it) equals the vmapped ``lax.cond``."""
 
 from __future__ import annotations
 
@@ -133,3 +134,38 @@ def test_lane_map_equals_vmap_in_chunks():
         np.testing.assert_allclose(np.asarray(g), np.asarray(r), rtol=1e-15)
     one = fun(_A[3], {"w": tree["w"][3], "c": tree["c"]}, s[3])
     np.testing.assert_allclose(np.asarray(one[0]), np.asarray(ref[0][3]), rtol=1e-15)
+
+
+def test_compacted_cond_equals_vmapped_cond():
+    """``compacted_cond`` under vmap equals ``jax.vmap(lax.cond)`` row by row: no row, a few rows and more rows
+    than one chunk take the true branch; the branches close over a batched value and a shared one; the one-instance
+    call and forward mode are those of ``lax.cond``."""
+    from solvers._lanes import compacted_cond
+
+    x = jnp.asarray(np.random.default_rng(1).normal(size=(_B, 3)))
+    w = jnp.asarray(np.random.default_rng(2).normal(size=_B))
+    c = jnp.asarray(0.5)
+
+    def branches(xi, wi):
+        return (lambda a: (a * wi + jnp.sin(a) * c, wi, jnp.int32(1))), (lambda a: (a, 0.0 * wi, jnp.int32(0)))
+
+    def fun(xi, wi, cut):
+        t, f = branches(xi, wi)
+        return compacted_cond(xi[0] > cut, t, f, xi, fraction=0.125)
+
+    def ref(xi, wi, cut):
+        t, f = branches(xi, wi)
+        return jax.lax.cond(xi[0] > cut, t, f, xi)
+
+    got_fn, ref_fn = jax.jit(jax.vmap(fun, in_axes=(0, 0, None))), jax.jit(jax.vmap(ref, in_axes=(0, 0, None)))
+    for cut in (10.0, 1.0, -1.0):  # none, a few (within one chunk of 4 rows or not), most rows
+        got, want = got_fn(x, w, cut), ref_fn(x, w, cut)
+        np.testing.assert_array_equal(np.asarray(got[2]), np.asarray(want[2]))
+        for g, r in zip(got[:2], want[:2]):
+            np.testing.assert_allclose(np.asarray(g), np.asarray(r), rtol=1e-15, atol=1e-15)
+    assert 0 < int(np.sum(np.asarray(x[:, 0]) > 1.0)) and int(np.sum(np.asarray(x[:, 0]) > -1.0)) > _B // 8 + 1
+    for i in (0, 7):
+        np.testing.assert_allclose(np.asarray(fun(x[i], w[i], 0.0)[0]), np.asarray(ref(x[i], w[i], 0.0)[0]), rtol=1e-15)
+        jf = jax.jacfwd(lambda a: fun(a, w[i], 0.0)[0])(x[i])
+        jr = jax.jacfwd(lambda a: ref(a, w[i], 0.0)[0])(x[i])
+        np.testing.assert_allclose(np.asarray(jf), np.asarray(jr), rtol=1e-15)

@@ -1,7 +1,8 @@
 """Tests of the stable-PD torque limit (``StablePD.torque_limit``) in jaxanim.physics.step: against the
 analytic spin-up of a sphere held at its center (a saturated joint applies exactly its bound), the
 unbounded step (a bound no torque reaches changes nothing), and explicit PD with clipped torques at
-4000 Hz (the continuous law the bounded stable PD discretizes)."""
+4000 Hz (the continuous law the bounded stable PD discretizes); a batch of steps, whose limit passes run only on the
+rows that need them, against the same steps one by one."""
 
 from __future__ import annotations
 
@@ -110,6 +111,28 @@ def test_a_bound_no_torque_reaches_changes_nothing():
         np.testing.assert_allclose(getattr(bounded, name), getattr(free, name), rtol=1e-12, atol=1e-12, err_msg=name)
     inf = physics.step(model, state, 1 / 120, spd=(targets, kp, kd, jnp.inf))
     np.testing.assert_allclose(inf.angular_velocity, free.angular_velocity, rtol=1e-12, atol=1e-12)
+
+
+def test_a_batch_of_bounded_steps_equals_the_steps_one_by_one():
+    """Under vmap the limit passes run only on the rows where a torque exceeds its bound
+    (``solvers.compacted_cond``, in chunks of an eighth of the batch): 24 chains, 5 of them with bounds that bind
+    (two chunks), step for step the same states and torques as each chain stepped alone."""
+    model, state, targets, kp, kd, _ = _chain_args(0.0)
+    binding = jnp.asarray([20.0, 25.0, 30.0, 5.0, 40.0])
+    limits = jnp.full((24, 3), 1e4).at[jnp.asarray([1, 4, 9, 17, 23]), 0].set(binding)
+
+    @jax.jit
+    def one(limit):
+        s, tau = _step_and_torques(model, state, physics.StablePD(targets, kp, kd, limit), 1 / 120)
+        return s.angular_velocity, tau
+
+    w, tau = jax.jit(jax.vmap(one))(limits)
+    norms = np.linalg.norm(np.asarray(tau), axis=-1)
+    assert np.sum(np.any(norms >= np.asarray(limits) * (1 - 1e-9), axis=1)) == 5  # the five rows saturated
+    for i in range(24):
+        w_i, tau_i = one(limits[i])
+        np.testing.assert_allclose(np.asarray(w[i]), np.asarray(w_i), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(tau[i]), np.asarray(tau_i), rtol=1e-12, atol=1e-12)
 
 
 def _run(limit, rate, law="spd"):

@@ -15,6 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+import solvers
+
 from .. import rotations as rot
 from .._errors import JaxanimError
 from ._bodies import BodyState, _check_loads, _free_velocities, _integrate
@@ -250,8 +252,11 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
         V = _solve_rows(model, plan, one_sided, M, q, Jp, Jc, b, C)
         return V, saturated, fixed, Jp, Jc, b, C
 
-    init = (jnp.zeros_like(p), jnp.zeros(limit.shape, bool), jnp.zeros((limit.shape[0], 3), p.dtype), Jp, Jc, b, C)
-    V, saturated, fixed, Jp, Jc, b, C = jax.lax.fori_loop(0, 1 + _LIMIT_PASSES, one_pass, init)
+    V = _solve_rows(model, plan, one_sided, M, p, Jp, Jc, b, C)  # the unbounded solve
+    over = jnp.any(jnp.linalg.norm(_spd_torques(model, Jp, Jc, b, C, V, h), axis=-1) > limit)
+    init = (V, jnp.zeros(limit.shape, bool), jnp.zeros((limit.shape[0], 3), p.dtype), Jp, Jc, b, C)
+    V, saturated, fixed, Jp, Jc, b, C = solvers.compacted_cond(
+        over, lambda c: jax.lax.fori_loop(1, 1 + _LIMIT_PASSES, one_pass, c), lambda c: c, init)
     tau = jnp.where(saturated[:, None], fixed, _spd_torques(model, Jp, Jc, b, C, V, h))
     return V, tau
 
