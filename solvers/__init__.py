@@ -4,7 +4,7 @@ This package knows nothing of skeletons and never imports ``jaxanim``.
 """
 
 from ._sharding import batch_mesh as batch_mesh, batch_sharding as batch_sharding, shard_batch as shard_batch
-from ._lanes import compacted_cond as compacted_cond, lane_map as lane_map
+from ._lanes import lane_map as lane_map, repeat_while as repeat_while
 from ._results import RESULTS as RESULTS, Solution as Solution
 from ._least_squares import (
     AbstractLeastSquaresSolver as AbstractLeastSquaresSolver,

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["LANES", "compacted_cond", "hoist_closure", "lane_map", "while_loop"]
+__all__ = ["LANES", "hoist_closure", "lane_map", "repeat_while", "while_loop"]
 
 LANES = 128
 """Lanes of a compacted loop (a batch of at most this many runs as one plain vmapped loop).
@@ -151,56 +151,48 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
     return differentiable(*args, *consts)
 
 
-def compacted_cond(pred, true_fun: Callable[..., Any], false_fun: Callable[..., Any], *operands: Any,
-                   fraction: float = 0.125) -> Any:
-    """``lax.cond(pred, true_fun, false_fun, *operands)``, whose batched calls run ``true_fun`` only on
-    the rows whose ``pred`` holds.
+def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], init: Any, *, times: int,
+                 lanes: int = LANES) -> Any:
+    """``x = body(0, init)``, then ``x = body(i, x)`` for ``i = 1, 2, ...`` while ``i < times`` and
+    ``needed(x)``: a few passes of which most problems need only the first.
 
-    Under ``vmap`` a ``lax.cond`` with a batched predicate runs both branches on every row and selects.
-    When ``true_fun`` is the expensive branch and few rows take it, the batched call here runs
-    ``false_fun`` on every row, gathers the rows whose predicate holds into chunks of
-    ``ceil(fraction * batch)`` rows (as many chunks as needed, one after another: a ``while_loop``
-    at one shape) and writes their ``true_fun`` results back in place. Each row's value is the
-    one-instance ``lax.cond``'s (up to round-off of the vector width). ``true_fun`` and
-    ``false_fun`` may close over batched values. Forward mode differentiates the plain ``lax.cond``;
-    other backends than the CPU take the plain vmapped ``lax.cond``.
+    One instance is a ``lax.fori_loop`` of ``times`` passes, each a ``lax.cond`` (a pass that is not
+    needed is skipped, in forward and reverse mode alike: the derivative is that of the passes run).
+    Under ``vmap`` on the CPU, with more problems than ``lanes``, the passes run through the lanes of
+    :func:`while_loop`: a problem leaves its lane after its last needed pass, so a batch costs about
+    as many passes as its problems need, where the vmapped ``lax.cond`` would run every pass on every
+    problem (its predicate is batched). ``body`` appears once in either program. Each problem's value
+    is the one-instance value (up to round-off of the vector width). ``body`` and ``needed`` may close
+    over batched values; ``i`` is a traced integer.
     """
-    t_of, t_consts = hoist_closure(true_fun, *operands)
-    f_of, f_consts = hoist_closure(false_fun, *operands)
-    n_ops, n_t = len(operands), len(t_consts)
 
-    def branches(a):
-        ops, tc, fc = a[:n_ops], a[n_ops:n_ops + n_t], a[n_ops + n_t:]
-        return (lambda o: t_of(*o, *tc)), (lambda o: f_of(*o, *fc)), ops
+    body_of, body_consts = hoist_closure(body, jnp.asarray(0), init)
+    needed_of, needed_consts = hoist_closure(needed, init)
+    nb = len(body_consts)
 
-    def plain(p, *a):
-        t, f, ops = branches(a)
-        return jax.lax.cond(p, t, f, ops)
+    def plain(x0, *consts):
+        bc, nc = consts[:nb], consts[nb:]
+
+        def step(i, c):
+            x, go = c
+            go = (i == 0) | (go & needed_of(x, *nc))
+            return jax.lax.cond(go, lambda x: body_of(i, x, *bc), lambda x: x, x), go
+
+        return jax.lax.fori_loop(0, times, step, (x0, jnp.asarray(True)))[0]
+
+    def compacted(x0, *consts):
+        bc, nc = consts[:nb], consts[nb:]
+        _, x = while_loop(lambda c: (c[0] == 0) | ((c[0] < times) & needed_of(c[1], *nc)),
+                          lambda c: (c[0] + 1, body_of(c[0], c[1], *bc)), (jnp.asarray(0), x0), lanes=lanes)
+        return x
 
     routed = jax.custom_batching.custom_vmap(plain)
 
     @routed.def_vmap
-    def _rule(axis_size: int, in_batched, p, *a):
-        axes = tuple(map(_axes, in_batched[1:]))
-        if not in_batched[0] or jax.default_backend() != "cpu":
-            out = jax.vmap(plain, in_axes=(0 if in_batched[0] else None, *axes))(p, *a)
-            return out, jax.tree.map(lambda _: True, out)
-        cap = max(1, int(np.ceil(fraction * axis_size)))
-        out = jax.vmap(lambda *x: branches(x)[1](branches(x)[2]), in_axes=axes)(*a)
-        count = jnp.sum(p)
-        order = jnp.concatenate([jnp.nonzero(p, size=axis_size, fill_value=axis_size)[0],
-                                 jnp.full((cap,), axis_size, jnp.int32).astype(jnp.int_)])
-        leaves, tree = jax.tree.flatten(a)
-        flags = jax.tree.leaves(in_batched[1:])
-
-        def body(c):
-            k, out = c
-            idx = jax.lax.dynamic_slice(order, (k * cap,), (cap,))
-            rows = [jnp.take(x, idx, axis=0, mode="clip") if f else x for x, f in zip(leaves, flags)]
-            res = jax.vmap(lambda *x: branches(x)[0](branches(x)[2]), in_axes=axes)(*jax.tree.unflatten(tree, rows))
-            return k + 1, jax.tree.map(lambda o, r: o.at[idx].set(r, mode="drop"), out, res)
-
-        _, out = jax.lax.while_loop(lambda c: c[0] * cap < count, body, (jnp.asarray(0, order.dtype), out))
+    def _rule(axis_size: int, in_batched, x0, *cs):
+        axes = (_axes(in_batched[0]), *map(_axes, in_batched[1:]))
+        small = axis_size <= lanes or jax.default_backend() != "cpu"
+        out = jax.vmap(plain if small else compacted, in_axes=axes)(x0, *cs)
         return out, jax.tree.map(lambda _: True, out)
 
     differentiable = eqx.filter_custom_jvp(lambda *a: routed(*a))
@@ -209,7 +201,7 @@ def compacted_cond(pred, true_fun: Callable[..., Any], false_fun: Callable[..., 
     def _jvp(primals, tangents):
         return eqx.filter_jvp(plain, primals, tangents)
 
-    return differentiable(pred, *operands, *t_consts, *f_consts)
+    return differentiable(init, *body_consts, *needed_consts)
 
 
 def _axes(batched_tree):

@@ -2,14 +2,15 @@
 ``lax.while_loop`` element by element (and the one-instance loop), in input order, with
 per-element trip counts, batched and shared closed-over data (also integers), a batch that is not
 a multiple of the lanes, nested vmap and forward mode; and the solvers that run on it (the
-iteration driver, DARE, iLQR) give each problem the result it gets alone. ``compacted_cond`` (the true branch
-run only on the rows that take it) equals the vmapped ``lax.cond``."""
+iteration driver, DARE, iLQR) give each problem the result it gets alone. ``repeat_while`` (passes that most problems
+skip) equals the passes one problem at a time."""
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import solvers
 from solvers import problems
@@ -136,36 +137,40 @@ def test_lane_map_equals_vmap_in_chunks():
     np.testing.assert_allclose(np.asarray(one[0]), np.asarray(ref[0][3]), rtol=1e-15)
 
 
-def test_compacted_cond_equals_vmapped_cond():
-    """``compacted_cond`` under vmap equals ``jax.vmap(lax.cond)`` row by row: no row, a few rows and more rows
-    than one chunk take the true branch; the branches close over a batched value and a shared one; the one-instance
-    call and forward mode are those of ``lax.cond``."""
-    from solvers._lanes import compacted_cond
+def test_repeat_while_equals_the_passes_one_by_one():
+    """``repeat_while`` under vmap (more problems than lanes; no problem, a few and most of them needing the later
+    passes; a batched and a shared closed-over value) equals each problem's one-instance call, which equals the
+    passes written out; forward and reverse mode are those of the passes run."""
+    from solvers._lanes import repeat_while
 
     x = jnp.asarray(np.random.default_rng(1).normal(size=(_B, 3)))
-    w = jnp.asarray(np.random.default_rng(2).normal(size=_B))
+    w = jnp.asarray(np.random.default_rng(2).uniform(0.5, 2.0, size=_B))
     c = jnp.asarray(0.5)
 
-    def branches(xi, wi):
-        return (lambda a: (a * wi + jnp.sin(a) * c, wi, jnp.int32(1))), (lambda a: (a, 0.0 * wi, jnp.int32(0)))
+    def fun(xi, wi, cut):  # pass i adds (i + c) * w to the first entry while it is below cut
+        return repeat_while(lambda i, a: a.at[0].add((i + c) * wi), lambda a: a[0] < cut, xi, times=4, lanes=_LANES)
 
-    def fun(xi, wi, cut):
-        t, f = branches(xi, wi)
-        return compacted_cond(xi[0] > cut, t, f, xi, fraction=0.125)
+    def written_out(xi, wi, cut):
+        a = xi.at[0].add(c * wi)
+        for i in (1, 2, 3):
+            a = a.at[0].add(jnp.where(a[0] < cut, (i + c) * wi, 0.0))
+            if float(a[0]) >= cut:
+                break
+        return a
 
-    def ref(xi, wi, cut):
-        t, f = branches(xi, wi)
-        return jax.lax.cond(xi[0] > cut, t, f, xi)
-
-    got_fn, ref_fn = jax.jit(jax.vmap(fun, in_axes=(0, 0, None))), jax.jit(jax.vmap(ref, in_axes=(0, 0, None)))
-    for cut in (10.0, 1.0, -1.0):  # none, a few (within one chunk of 4 rows or not), most rows
-        got, want = got_fn(x, w, cut), ref_fn(x, w, cut)
-        np.testing.assert_array_equal(np.asarray(got[2]), np.asarray(want[2]))
-        for g, r in zip(got[:2], want[:2]):
-            np.testing.assert_allclose(np.asarray(g), np.asarray(r), rtol=1e-15, atol=1e-15)
-    assert 0 < int(np.sum(np.asarray(x[:, 0]) > 1.0)) and int(np.sum(np.asarray(x[:, 0]) > -1.0)) > _B // 8 + 1
-    for i in (0, 7):
-        np.testing.assert_allclose(np.asarray(fun(x[i], w[i], 0.0)[0]), np.asarray(ref(x[i], w[i], 0.0)[0]), rtol=1e-15)
-        jf = jax.jacfwd(lambda a: fun(a, w[i], 0.0)[0])(x[i])
-        jr = jax.jacfwd(lambda a: ref(a, w[i], 0.0)[0])(x[i])
-        np.testing.assert_allclose(np.asarray(jf), np.asarray(jr), rtol=1e-15)
+    batched = jax.jit(jax.vmap(fun, in_axes=(0, 0, None)))
+    for cut in (-10.0, 0.0, 10.0):  # none, some and all of them run every pass
+        got = batched(x, w, cut)
+        for i in range(_B):
+            want = written_out(x[i], w[i], cut)
+            np.testing.assert_allclose(np.asarray(got[i]), np.asarray(want), rtol=1e-15, atol=1e-15)
+            if i % 7 == 0:
+                np.testing.assert_allclose(np.asarray(fun(x[i], w[i], cut)), np.asarray(want), rtol=1e-15, atol=1e-15)
+    # the derivative with respect to w: the passes run contribute (i + c) each
+    i = int(np.argmax(np.asarray(x[:, 0]) < -1.0))
+    grad = jax.grad(lambda wi: fun(x[i], wi, 0.0)[0])(w[i])
+    tangent = jax.jvp(lambda wi: fun(x[i], wi, 0.0)[0], (w[i],), (jnp.ones(()),))[1]
+    passes = np.cumsum([0.5, 1.5, 2.5, 3.5]) * float(w[i]) + float(x[i, 0])
+    taken = 1 + int(np.sum(passes[:3] < 0.0))
+    expected = float(np.sum(np.arange(taken) + 0.5))
+    assert float(grad) == pytest.approx(expected, rel=1e-15) and float(tangent) == pytest.approx(expected, rel=1e-15)

@@ -114,12 +114,12 @@ def test_a_bound_no_torque_reaches_changes_nothing():
 
 
 def test_a_batch_of_bounded_steps_equals_the_steps_one_by_one():
-    """Under vmap the limit passes run only on the rows where a torque exceeds its bound
-    (``solvers.compacted_cond``, in chunks of an eighth of the batch): 24 chains, 5 of them with bounds that bind
-    (two chunks), step for step the same states and torques as each chain stepped alone."""
+    """Under vmap the limit passes run only on the chains where a torque exceeds its bound
+    (``solvers.repeat_while`` on 16 lanes): 160 chains, 5 of them with bounds that bind, step for
+    step the same states and torques as each chain stepped alone."""
     model, state, targets, kp, kd, _ = _chain_args(0.0)
     binding = jnp.asarray([20.0, 25.0, 30.0, 5.0, 40.0])
-    limits = jnp.full((24, 3), 1e4).at[jnp.asarray([1, 4, 9, 17, 23]), 0].set(binding)
+    limits = jnp.full((160, 3), 1e4).at[jnp.asarray([1, 40, 90, 130, 159]), 0].set(binding)
 
     @jax.jit
     def one(limit):
@@ -129,7 +129,7 @@ def test_a_batch_of_bounded_steps_equals_the_steps_one_by_one():
     w, tau = jax.jit(jax.vmap(one))(limits)
     norms = np.linalg.norm(np.asarray(tau), axis=-1)
     assert np.sum(np.any(norms >= np.asarray(limits) * (1 - 1e-9), axis=1)) == 5  # the five rows saturated
-    for i in range(24):
+    for i in range(160):
         w_i, tau_i = one(limits[i])
         np.testing.assert_allclose(np.asarray(w[i]), np.asarray(w_i), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(np.asarray(tau[i]), np.asarray(tau_i), rtol=1e-12, atol=1e-12)
