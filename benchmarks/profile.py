@@ -307,6 +307,42 @@ def _physics(model):
     return build
 
 
+#: Windows of the profiled SAMCON call, at the 4 s walk's 256 samples (the tracking table's rows run 10 windows of
+#: 256 and 1,024: the trace of every event of 2 windows at 1,024 did not fit in 23 GB of memory) and frames of the
+#: profiled linearization (the walk table's runs 120).
+SEARCH_PROFILED_WINDOWS = 1
+GAINS_PROFILED_FRAMES = 9  # three windows of three frames
+
+
+def _samcon_search(config, batch):
+    from .tracking import _options, _search, walk_problem
+
+    W = SEARCH_PROFILED_WINDOWS
+    char, ref = walk_problem(W * 3 + 1)
+    opts = _options(char, ref, batch)
+    steps = (opts.window + opts.lookahead) * opts.steps_per_frame
+
+    def search(key):
+        res = _search(char, ref, key, opts, W)
+        return res.corrections, res.joint_error
+
+    return search, (jax.random.PRNGKey(0),), W * batch * steps
+
+
+def _linearize(config, batch):
+    from jaxanim import tracking
+    from jaxanim.tracking import _feedback
+
+    from .tracking import _options, walk_problem
+
+    char, ref = walk_problem(GAINS_PROFILED_FRAMES + 1)
+    opts = _options(char, ref, 256)
+    windows = tracking.windows_of(ref, opts)
+    corrections = jnp.zeros((windows, char.model.joints.num_joints, 3), jnp.float64)
+    return (lambda c, states: _feedback._linearize(char, ref, opts, c, states)), (corrections, ref.states), \
+        GAINS_PROFILED_FRAMES
+
+
 KERNELS: tuple[Kernel, ...] = (
     Kernel("FK (quaternions)", "float64", 4096, "fk: FK ≥ 1.8x the Pinocchio loop (float64)", _fk,
            "Per-level products of [B, n, 3, 3] blocks whose minor dimension is 3: XLA:CPU runs each fusion as a "
@@ -374,6 +410,28 @@ KERNELS: tuple[Kernel, ...] = (
            "On top of the tree solve, the contact rows are solved by projected Gauss-Seidel, a fixed number of "
            "sweeps every step, each row after the other (sequential by nature): thousands of tiny kernels per "
            "call (the instruction count above) on a handful of numbers each."),
+    Kernel(f"SAMCON search, {SEARCH_PROFILED_WINDOWS} window", "float64", 256,
+           "tracking: SAMCON search per character-step ≤ 1.5x the plain step (issue 32)", _samcon_search,
+           "Each sample's physics step solves the joint tree and the contact rows once, and again in the torque-limit "
+           "passes only where a joint exceeds its bound (`solvers.repeat_while` on narrow lanes); the call runs "
+           "hundreds of thousands of instructions of under a microsecond each (the count above). The top ones, each "
+           "run as often, are the row updates of the projected Gauss-Seidel sweeps (a dot, a divide, a subtract and "
+           "a scatter per contact row, row after row), on a lane's few samples at a time: the per-instruction cost "
+           "of the XLA:CPU runtime, not arithmetic, sets the time. Wider lanes spread it over more samples but make "
+           "more samples wait through passes they do not need (measured slower at the walk's batch, in the lanes "
+           "constant's comment in `jaxanim/physics/_step.py`)"),
+    Kernel(f"feedback gains: linearize, {GAINS_PROFILED_FRAMES} frames", "float64", 1,
+           "tracking-walk: feedback gains ≤ 50 ms per frame; compiling the search and the gains ≤ 15 s (issue 32)",
+           _linearize, "`jax.jacfwd` carries every body-state and control tangent through each frame's physics steps "
+           "(`python -m benchmarks tracking` gives their number). Each step's solve builds the Delassus matrix of "
+           "the contact and joint-limit rows by one tree-solve column per row, each column carrying every tangent, "
+           "and the torque-limit passes (the `branch_1_fun` instructions above: the pass branch, taken where a "
+           "joint exceeds its bound) build it again: the time is data movement on the tangent blocks (the "
+           "scatter-adds into the columns, transposes) and their products. The gains need this derivative of the "
+           "plant's own fixed sweeps: an implicit derivative at the converged contact solution and one that holds "
+           "the Delassus matrix fixed were cheaper but gave gains that did not hold the acceptance push (issue 32's "
+           "notes). Compile time is the LLVM build of the kernels counted above, for the search's program and this "
+           "one apart"),
 )
 
 
