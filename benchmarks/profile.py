@@ -315,28 +315,27 @@ GAINS_PROFILED_FRAMES = 9  # three windows of three frames
 
 
 def _samcon_search(config, batch):
-    from .tracking import _options, _search, walk_problem
+    from .tracking import _options, _search, steps_per_sample, walk_problem
 
     W = SEARCH_PROFILED_WINDOWS
     char, ref = walk_problem(W * 3 + 1)
     opts = _options(char, ref, batch)
-    steps = (opts.window + opts.lookahead) * opts.steps_per_frame
 
     def search(key):
         res = _search(char, ref, key, opts, W)
         return res.corrections, res.joint_error
 
-    return search, (jax.random.PRNGKey(0),), W * batch * steps
+    return search, (jax.random.PRNGKey(0),), W * batch * steps_per_sample(opts)
 
 
 def _linearize(config, batch):
     from jaxanim import tracking
     from jaxanim.tracking import _feedback
 
-    from .tracking import _options, walk_problem
+    from .tracking import TrackingSizes, _options, walk_problem
 
     char, ref = walk_problem(GAINS_PROFILED_FRAMES + 1)
-    opts = _options(char, ref, 256)
+    opts = _options(char, ref, TrackingSizes().walk_samples)  # the walk table's options
     windows = tracking.windows_of(ref, opts)
     corrections = jnp.zeros((windows, char.model.joints.num_joints, 3), jnp.float64)
     return (lambda c, states: _feedback._linearize(char, ref, opts, c, states)), (corrections, ref.states), \

@@ -21,7 +21,7 @@ from .peers import mujoco_physics as mp
 from .report import Row, Table, Target, sel, usable_cores
 from .timing import Runner, Timing, compile_time
 
-__all__ = ["ACCELERATOR_SIZES", "TrackingSizes", "run_tracking", "walk_problem"]
+__all__ = ["ACCELERATOR_SIZES", "TrackingSizes", "run_tracking", "steps_per_sample", "walk_problem"]
 
 _MJ_ROLLOUT = "MuJoCo C rollout.rollout"
 _MJ_LOOP = "MuJoCo C mj_step (Python loop)"
@@ -67,12 +67,17 @@ def _options(char, ref, samples: int) -> tracking.TrackingOptions:
     return tracking.tracking_options(char, float(ref.frame_time), samples)
 
 
+def steps_per_sample(opts: tracking.TrackingOptions) -> int:
+    """Character-steps one sample of a search window simulates (its window and look-ahead)."""
+    return (opts.window + opts.lookahead) * opts.steps_per_frame
+
+
 def _samples_table(config, sz: TrackingSizes) -> Table:
     batches = tuple(b for b in config.batches_for(sz.batches) if b >= 2)  # a search samples at least 2
     W = sz.windows_per_call
     char, ref = walk_problem(W * 3 + 1)
     o = _options(char, ref, 2)
-    steps = (o.window + o.lookahead) * o.steps_per_frame  # physics steps per sample
+    steps = steps_per_sample(o)
     h = float(ref.frame_time) / o.steps_per_frame
     nthread = usable_cores()
     table = Table(

@@ -190,6 +190,9 @@ def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], 
 
     @routed.def_vmap
     def _rule(axis_size: int, in_batched, x0, *cs):
+        if not any(jax.tree.leaves(in_batched)):  # as in while_loop's rule: one instance
+            out = plain(x0, *cs)
+            return out, jax.tree.map(lambda _: False, out)
         axes = (_axes(in_batched[0]), *map(_axes, in_batched[1:]))
         small = axis_size <= lanes or jax.default_backend() != "cpu"
         out = jax.vmap(plain if small else compacted, in_axes=axes)(x0, *cs)

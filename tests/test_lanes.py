@@ -153,9 +153,9 @@ def test_repeat_while_equals_the_passes_one_by_one():
     def written_out(xi, wi, cut):
         a = xi.at[0].add(c * wi)
         for i in (1, 2, 3):
-            a = a.at[0].add(jnp.where(a[0] < cut, (i + c) * wi, 0.0))
             if float(a[0]) >= cut:
                 break
+            a = a.at[0].add((i + c) * wi)
         return a
 
     batched = jax.jit(jax.vmap(fun, in_axes=(0, 0, None)))

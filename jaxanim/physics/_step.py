@@ -236,8 +236,7 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
     limit = jnp.maximum(limit, 0.0)
 
     def one_pass(i, carry):
-        V, saturated, fixed, Jp, Jc, b, C = carry
-        tau = _spd_torques(model, Jp, Jc, b, C, V, h)
+        V, tau, saturated, fixed, Jp, Jc, b, C = carry  # tau: the stable-PD torques that V implies
         norm = jnp.linalg.norm(tau, axis=-1)
         over = (i > 0) & ~saturated & (norm > limit)  # iteration 0: the unbounded solve
         scale = limit / jnp.where(over, norm, 1.0)
@@ -252,16 +251,17 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
         if np.any(has_parent):
             q = q.at[par[has_parent], 3:].add(-h * fixed[np.nonzero(has_parent)[0]])
         V = _solve_rows(model, plan, one_sided, M, q, Jp, Jc, b, C)
-        return V, saturated, fixed, Jp, Jc, b, C
+        return V, _spd_torques(model, Jp, Jc, b, C, V, h), saturated, fixed, Jp, Jc, b, C
 
     def needed(carry):  # a joint over its bound that the passes have not saturated yet
-        V, saturated, _, Jp, Jc, b, C = carry
-        return jnp.any(~saturated & (jnp.linalg.norm(_spd_torques(model, Jp, Jc, b, C, V, h), axis=-1) > limit))
+        _, tau, saturated = carry[:3]
+        return jnp.any(~saturated & (jnp.linalg.norm(tau, axis=-1) > limit))
 
-    init = (jnp.zeros_like(p), jnp.zeros(limit.shape, bool), jnp.zeros((limit.shape[0], 3), p.dtype), Jp, Jc, b, C)
-    V, saturated, fixed, Jp, Jc, b, C = solvers.repeat_while(one_pass, needed, init, times=1 + _LIMIT_PASSES,
-                                                            lanes=_PASS_LANES)
-    tau = jnp.where(saturated[:, None], fixed, _spd_torques(model, Jp, Jc, b, C, V, h))
+    zeros = jnp.zeros((limit.shape[0], 3), p.dtype)
+    init = (jnp.zeros_like(p), zeros, jnp.zeros(limit.shape, bool), zeros, Jp, Jc, b, C)
+    V, tau, saturated, fixed = solvers.repeat_while(one_pass, needed, init, times=1 + _LIMIT_PASSES,
+                                                   lanes=_PASS_LANES)[:4]
+    tau = jnp.where(saturated[:, None], fixed, tau)
     return V, tau
 
 
