@@ -176,7 +176,7 @@ def _profile(robot, problems, opts) -> str:
         return rs._linearize(robot, p, lay, rs._initial(robot, p, dtype), rs._frames(p, opts, dtype), opts)
 
     def solve(lin):
-        _, JtJ, Jtr, (c, o, a, acc) = lin
+        _, JtJ, Jtr, (c, o, a, acc), _ = lin
         g = rs._gradient(Jtr, c, o, a, acc)
         H, e1, e2, g, _ = rs._normal_equations(JtJ, g, c, a, jnp.ones_like(g), jnp.asarray(1e-2, dtype))
         return solvers.block_pentadiagonal_solve(H, e1, e2, -g)[0]

@@ -18,7 +18,8 @@ coordinate at a bound whose gradient points out of the range is held there for t
 Gauss-Newton, Bertsekas 1982).
 
 Each iteration linearizes every frame's residual (one batched kinematics and Jacobian pass) and
-solves the Levenberg-Marquardt normal equations. Their matrix couples a frame with its two
+solves the Levenberg-Marquardt normal equations; the foot points that the last step took below the
+ground from above its soft band join the model with their depth (:func:`_step`). Their matrix couples a frame with its two
 neighbours on each side (velocity: one, acceleration: two) through diagonal blocks;
 :func:`solvers.block_pentadiagonal_solve` solves it in O(T) (frames paired into blocks of ``2 nv``, one
 Cholesky factorization and triangular inverse per pair). In the smoothness terms the difference of
@@ -147,8 +148,10 @@ class _Frame(eqx.Module):
 
 
 def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame):
-    """``(r [m], J [m, nv], posture)`` of one frame: the posture term's rows are the identity on the
-    joints' dofs (``w_posture`` times ``posture``), added by :func:`_frame_normal` without forming them."""
+    """``(r [m], J [m, nv], posture, ground)`` of one frame: the posture term's rows are the identity on the
+    joints' dofs (``w_posture`` times ``posture``), added by :func:`_frame_normal` without forming them.
+    ``ground`` is every foot point's weighted height and height row ``(sqrt(w) h [P], sqrt(w) dh/dq [P, nv])``
+    and whether the point is above the ground's soft band (``[P]`` bool: its row in ``J`` is zero)."""
     dtype = q.dtype
     kin = _kinematics(robot, q, dtype)
     bodies = prob.bodies
@@ -180,7 +183,7 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
         (sp[:, :, None] * jacp).reshape(-1, robot.nv), (so[:, :, None] * Jo).reshape(-1, robot.nv),
         (spl[:, :, None] * jacp[np.asarray(feet)]).reshape(-1, robot.nv), (spl[:, :, None] * Jpl).reshape(-1, robot.nv),
         (sg * slope)[:, None] * jz])
-    return r, J, posture
+    return r, J, posture, (sg * height, sg[:, None] * jz, slope == 0)
 
 
 def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
@@ -198,12 +201,12 @@ def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
 
 
 def _frame_normal(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame):
-    """``(cost, J'J [nv, nv], J'r [nv])`` of one frame's terms."""
-    r, J, posture = _frame_residual(robot, prob, lay, q, fr)
+    """``(cost, J'J [nv, nv], J'r [nv], ground)`` of one frame's terms (``ground``: :func:`_frame_residual`'s)."""
+    r, J, posture, ground = _frame_residual(robot, prob, lay, q, fr)
     d = lay.joint_dofs
     JtJ = einsum("mi,mj->ij", J, J).at[d, d].add(fr.w_posture)
     Jtr = einsum("mi,m->i", J, r).at[d].add(fr.w_posture * posture)
-    return 0.5 * (jnp.sum(r**2) + fr.w_posture * jnp.sum(posture**2)), JtJ, Jtr
+    return 0.5 * (jnp.sum(r**2) + fr.w_posture * jnp.sum(posture**2)), JtJ, Jtr, ground
 
 
 # --- the smoothness terms and the banded system ------------------------------------------------------------
@@ -261,10 +264,10 @@ def _normal_equations(JtJ, g, c, a, free, mu):
 
 
 def _linearize(robot, prob, lay, q, frames, opts):
-    """``(cost, J'J [T, n, n], J'r [T, n], pair terms)`` at ``q``."""
-    local, JtJ, Jtr = jax.vmap(lambda qt, fr: _frame_normal(robot, prob, lay, qt, fr))(q, frames)
+    """``(cost, J'J [T, n, n], J'r [T, n], pair terms, ground [T, ...])`` at ``q``."""
+    local, JtJ, Jtr, ground = jax.vmap(lambda qt, fr: _frame_normal(robot, prob, lay, qt, fr))(q, frames)
     c, o, a, acc, smooth = _pair_terms(lay, q, prob, opts)
-    return jnp.sum(local) + smooth, JtJ, Jtr, (c, o, a, acc)
+    return jnp.sum(local) + smooth, JtJ, Jtr, (c, o, a, acc), ground
 
 
 def _free(lay: _Layout, rng, q, g, last, dtype):
@@ -293,6 +296,29 @@ def _initial(robot: Robot, prob: RetargetProblem, dtype):
     return q.at[:, a:a + 3].set(p).at[:, a + 3:a + 7].set(prob.orientations.astype(dtype)[:, 0])
 
 
+def _step(JtJ, g, c, a, free, mu, ground, touching):
+    """``(delta [T, n], ok, predicted decrease, touching)``: the damped Gauss-Newton step, with the ground rows
+    of the foot points ``touching`` ``[T, P]`` in its model; the returned ``touching`` are the points this step
+    takes below the ground from above its soft band.
+
+    A point above the ground's soft band has no row in the model (its residual and slope are 0 there), so a
+    step may carry it well below the ground, where its cost grows fast: such steps were rejected and the
+    damping raised several times a solve. The points that the last step (accepted or not) took below the
+    ground therefore join this step's model with the rows ``sqrt(w) (h + dh/dq delta)``: their depth's square
+    below the ground and, above it, a spring that holds them near the ground; a point leaves the set when the
+    step with its row keeps it above the ground (an active set, updated once per step). The predicted
+    decrease counts the points' model as one-sided."""
+    hs, jz, outside = ground
+    extra = (touching & outside).astype(g.dtype)
+    H, e1, e2, rhs, damp = _normal_equations(JtJ + einsum("tp,tpi,tpj->tij", extra, jz, jz),
+                                             g + einsum("tp,tpi->ti", extra * hs, jz), c, a, free, mu)
+    delta, ok = solvers.block_pentadiagonal_solve(H, e1, e2, -rhs)
+    h_new = hs + einsum("tpi,ti->tp", jz, delta)
+    predicted = (0.5 * (jnp.sum(damp * delta**2) - jnp.sum(rhs * delta))
+                 - 0.5 * jnp.sum(extra * (hs**2 - jnp.maximum(h_new, 0.0) ** 2)))
+    return delta, ok, predicted, outside & (h_new < 0)
+
+
 #: The most damping (relative to the diagonal) of a step that may end the iterations.
 _CONVERGED_DAMPING = 1e-3
 
@@ -308,17 +334,15 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
     rtol, xtol = opts.rtol.astype(dtype), opts.xtol.astype(dtype)
 
     def step(carry):
-        q, lin, (mu, nu), last, _, _, k = carry
-        cost, JtJ, Jtr, (c, o, a, acc) = lin
+        q, lin, (mu, nu), (last, touching), _, _, k = carry
+        cost, JtJ, Jtr, (c, o, a, acc), ground = lin
         g = _gradient(Jtr, c, o, a, acc)
         free = _free(lay, rng, q, g, last, dtype)
-        H, e1, e2, g, damp = _normal_equations(JtJ, g, c, a, free, mu)
-        delta, ok = solvers.block_pentadiagonal_solve(H, e1, e2, -g)
+        delta, ok, predicted, touching = _step(JtJ, g, c, a, free, mu, ground, touching)
         delta = jnp.where(ok, delta, 0.0)
         q_new = jax.vmap(lambda qt, dt: _retract(lay, rng, qt, dt, cones))(q, delta)
         lin_new = _linearize(robot, prob, lay, q_new, frames, opts)
         # Nielsen's damping update from the gain ratio: actual over the linear model's predicted decrease
-        predicted = 0.5 * (jnp.sum(damp * delta**2) - jnp.sum(g * delta))
         cost_new = lin_new[0]
         actual = cost - cost_new
         accept = ok & jnp.isfinite(cost_new) & (actual > 0)
@@ -332,11 +356,11 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
         mu, nu = (jnp.where(accept, jnp.maximum(mu_acc, 1e-9), jnp.minimum(mu * nu, 1e9)),
                   jnp.where(accept, 2.0, 2.0 * nu))
         last = jnp.where(accept | (free > 0), delta, last)  # rejected: a held coordinate stays held
-        return pick(q_new, q), pick(lin_new, lin), (mu, nu), last, converged, ~ok, k + 1
+        return pick(q_new, q), pick(lin_new, lin), (mu, nu), (last, touching), converged, ~ok, k + 1
 
     damping = (jnp.asarray(1e-4, dtype), jnp.asarray(2.0, dtype))  # mu relative to J'J's diagonal
-    start = (q0, lin0, damping, jnp.zeros_like(lin0[2]), jnp.asarray(False), jnp.asarray(False),
-             jnp.asarray(0, jnp.int32))
+    held = (jnp.zeros_like(lin0[2]), jnp.zeros(lin0[4][0].shape, bool))  # the last step, the points it touched
+    start = (q0, lin0, damping, held, jnp.asarray(False), jnp.asarray(False), jnp.asarray(0, jnp.int32))
     q, lin, _, _, converged, _, k = eqxi.while_loop(lambda c: ~(c[4] | c[5]), step, start,
                                                  max_steps=opts.iterations, kind="checkpointed")
     return q, lin[0], converged, k
