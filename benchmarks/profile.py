@@ -375,12 +375,15 @@ KERNELS: tuple[Kernel, ...] = (
     Kernel("retarget onto the G1 (per frame)", "float64", 32, "retarget: ≥ 5x mink's frames per second on 32 clips",
            _retarget,
            "Each Levenberg-Marquardt iteration linearizes every frame (the robot's kinematics, the Jacobians of the "
-           "targets and foot points, a dense J'J per frame) and then runs the banded solve, a scan over pairs of "
-           "frames, sequential in time, whose every step factors and inverts a block of twice the robot's dofs "
-           "for each clip: LAPACK Cholesky calls looped over the batch and small triangular solves and products, "
-           "run at a small fraction of the CPU's peak because the blocks are small. mink does per frame a few QPs "
-           "of the dofs' size in C; the whole-clip solve does more arithmetic per frame for what the per-frame "
-           "solve cannot give (planted feet, smoothness over the clip), so on two cores it trails mink's speed."),
+           "targets and foot points, a dense J'J per frame: the `mi,mj->ij` product) and then runs the banded "
+           "solve, a scan over pairs of frames, sequential in time, whose every step factors and inverts a block "
+           "of twice the robot's dofs for each clip (the `cholesky` calls, looped over the batch, and the small "
+           "`ki,kj->ij` products), at a fraction of the CPU's peak because the blocks are small; the two halves "
+           "cost about the same. Under `vmap` every clip runs until the slowest has converged, and the slowest "
+           "spend their last iterations on the wrists' pitch, which moves the matched wrist point by millimetres "
+           "per radian. mink does per frame a few QPs of the dofs' size in C; the whole-clip solve does more "
+           "arithmetic per frame for what the per-frame solve cannot give (planted feet, smoothness over the "
+           "clip), so on two cores it trails mink's speed."),
     Kernel("iLQR unicycle, T = 200", "float64", 1, "oc: one unicycle solve ≤ 1.5x Crocoddyl", _unicycle,
            "Per iteration three scans over 200 knots (backward pass, adjoint gradient, line-search rollout), each "
            "knot tens of XLA instructions on 2- and 3-vectors: a call runs tens of thousands of instructions of "
