@@ -78,6 +78,60 @@ def test_block_pentadiagonal_solve_equals_a_dense_solve(T, n):
     bad[T // 2] = -np.eye(n)
     _, ok = solvers.block_pentadiagonal_solve(jnp.asarray(bad), jnp.asarray(e1), jnp.asarray(e2), jnp.asarray(b))
     assert not bool(ok)
+    # under vmap (the loop reads the batched blocks where it needs them): each system as alone
+    xs, oks = jax.vmap(solvers.block_pentadiagonal_solve)(*(jnp.asarray(np.stack([v, 2 * v])) for v in (D, e1, e2, b)))
+    assert bool(oks[0]) and bool(oks[1])
+    np.testing.assert_allclose(np.asarray(xs[0]), np.asarray(x), rtol=1e-12, atol=1e-14)
+
+
+def test_a_retargeting_step_with_ground_rows_against_its_dense_model():
+    """The Levenberg-Marquardt step with the ground rows of the foot points the last step took below the ground
+    (``_step``): its solution is the dense solve of the damped normal equations with those rows added, and its
+    predicted decrease is the model's own, whose ground term is one-sided (the points' depth below the ground)."""
+    from jaxanim.robots._retarget_solve import _step
+
+    rng = np.random.default_rng(3)
+    T, n, P = 6, 4, 3
+    J = rng.normal(size=(T, 2 * n, n))
+    JtJ = np.einsum("tmi,tmj->tij", J, J)
+    g = rng.normal(size=(T, n))
+    c, a = rng.uniform(0.1, 1.0, size=(T - 1, n)), rng.uniform(0.1, 1.0, size=(T - 2, n))
+    hs = rng.uniform(0.0, 0.05, size=(T, P))  # weighted heights, every point above the soft band
+    jz = rng.normal(size=(T, P, n))
+    outside = np.ones((T, P), bool)
+    touching = rng.uniform(size=(T, P)) < 0.5
+    mu = 1e-2
+    delta, ok, predicted, touched = _step(*(jnp.asarray(v) for v in (JtJ, g, c, a, np.ones((T, n)), mu)),
+                                          (jnp.asarray(hs), jnp.asarray(jz), jnp.asarray(outside)), jnp.asarray(touching))
+    assert bool(ok)
+    # the model's Hessian: the frames' J'J, velocity and acceleration terms, and the touching points' rows
+    H = np.zeros((T * n, T * n))
+    blk = lambda t: slice(t * n, (t + 1) * n)  # noqa: E731
+    for t in range(T):
+        H[blk(t), blk(t)] += JtJ[t] + np.einsum("p,pi,pj->ij", touching[t], jz[t], jz[t])
+    for t in range(T - 1):
+        for i in range(n):
+            d = np.zeros(T * n)
+            d[(t + 1) * n + i], d[t * n + i] = 1.0, -1.0
+            H += c[t, i] * np.outer(d, d)
+    for t in range(T - 2):
+        for i in range(n):
+            d = np.zeros(T * n)
+            d[(t + 2) * n + i], d[(t + 1) * n + i], d[t * n + i] = 1.0, -2.0, 1.0
+            H += a[t, i] * np.outer(d, d)
+    rhs = g + np.einsum("tp,tp,tpi->ti", touching, hs, jz)
+    damped = H + np.diag(mu * np.diag(H) + mu * 1e-9 + 1e-12)
+    expected = np.linalg.solve(damped, -rhs.ravel())
+    np.testing.assert_allclose(np.asarray(delta).ravel(), expected, rtol=1e-9, atol=1e-12)
+    # the decrease of the model with one-sided ground rows: sum over the touching points of min(0, h + jz delta)^2 / 2
+    Hs = H - np.zeros_like(H)
+    for t in range(T):
+        Hs[blk(t), blk(t)] -= np.einsum("p,pi,pj->ij", touching[t], jz[t], jz[t])
+    dx = expected
+    h_new = hs + np.einsum("tpi,ti->tp", jz, dx.reshape(T, n))
+    model = g.ravel() @ dx + 0.5 * dx @ Hs @ dx + 0.5 * np.sum(touching * np.minimum(h_new, 0.0) ** 2)
+    np.testing.assert_allclose(float(predicted), -model, rtol=1e-9)
+    np.testing.assert_array_equal(np.asarray(touched), h_new < 0)
 
 
 def _mujoco_lowest(model, qpos, bodies):
