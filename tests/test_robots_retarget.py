@@ -101,8 +101,9 @@ def test_a_retargeting_step_with_ground_rows_against_its_dense_model():
     outside = np.ones((T, P), bool)
     touching = rng.uniform(size=(T, P)) < 0.5
     mu = 1e-2
-    delta, ok, predicted, touched = _step(*(jnp.asarray(v) for v in (JtJ, g, c, a, np.ones((T, n)), mu)),
-                                          (jnp.asarray(hs), jnp.asarray(jz), jnp.asarray(outside)), jnp.asarray(touching))
+    ground = (jnp.asarray(hs), jnp.asarray(jz), jnp.asarray(outside))
+    delta, ok, predicted, touched = _step(*(jnp.asarray(v) for v in (JtJ, g, c, a, np.ones((T, n)), mu)), ground,
+                                          jnp.asarray(touching))
     assert bool(ok)
     # the model's Hessian: the frames' J'J, velocity and acceleration terms, and the touching points' rows
     H = np.zeros((T * n, T * n))
@@ -124,7 +125,7 @@ def test_a_retargeting_step_with_ground_rows_against_its_dense_model():
     expected = np.linalg.solve(damped, -rhs.ravel())
     np.testing.assert_allclose(np.asarray(delta).ravel(), expected, rtol=1e-9, atol=1e-12)
     # the decrease of the model with one-sided ground rows: sum over the touching points of min(0, h + jz delta)^2 / 2
-    Hs = H - np.zeros_like(H)
+    Hs = H.copy()
     for t in range(T):
         Hs[blk(t), blk(t)] -= np.einsum("p,pi,pj->ij", touching[t], jz[t], jz[t])
     dx = expected
