@@ -19,8 +19,8 @@ Gauss-Newton, Bertsekas 1982).
 
 Each iteration linearizes every frame's residual (one batched kinematics and Jacobian pass) and
 solves the Levenberg-Marquardt normal equations; the foot points that the last step took below the
-ground from above its soft band join the model with their depth (:func:`_step`). Their matrix couples a frame with its two
-neighbours on each side (velocity: one, acceleration: two) through diagonal blocks;
+ground from above its soft band join the model with their depth (:func:`_step`). The equations' matrix
+couples a frame with its two neighbours on each side (velocity: one, acceleration: two) through diagonal blocks;
 :func:`solvers.block_pentadiagonal_solve` solves it in O(T) (frames paired into blocks of ``2 nv``, one
 Cholesky factorization and triangular inverse per pair). In the smoothness terms the difference of
 two root rotations is linearized as ``delta_{t+1} - delta_t`` (exact to first order in the per-frame rotation, which is
