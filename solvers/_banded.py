@@ -152,17 +152,17 @@ def block_pentadiagonal_solve(
         # B P B' from P's row blocks scaled by B's rows, then by its columns
         top = b0[:, None] * P_prev[:n] + b1[:, None] * P_prev[n:]
         bottom = b2[:, None] * P_prev[n:]
-        b0, b1, b2 = b0[None], b1[None], b2[None]  # now the columns' scalings
+        c0, c1, c2 = b0[None], b1[None], b2[None]  # the same diagonals, scaling columns
         S = jnp.concatenate([
-            jnp.concatenate([D0 - (top[:, :n] * b0 + top[:, n:] * b1), jnp.diag(e) - top[:, n:] * b2], axis=1),
-            jnp.concatenate([jnp.diag(e) - (bottom[:, :n] * b0 + bottom[:, n:] * b1), D1 - bottom[:, n:] * b2],
+            jnp.concatenate([D0 - (top[:, :n] * c0 + top[:, n:] * c1), jnp.diag(e) - top[:, n:] * c2], axis=1),
+            jnp.concatenate([jnp.diag(e) - (bottom[:, :n] * c0 + bottom[:, n:] * c1), D1 - bottom[:, n:] * c2],
                             axis=1)], axis=0)
         Li = _triangular_inverse(jax.lax.linalg.cholesky(S, symmetrize_input=False))
         A, X, C = Li[:n, :n], Li[n:, :n], Li[n:, n:]
         XtC = einsum("ki,kj->ij", X, C)
         P = jnp.concatenate([jnp.concatenate([einsum("ki,kj->ij", A, A) + einsum("ki,kj->ij", X, X), XtC], axis=1),
                              jnp.concatenate([XtC.T, einsum("ki,kj->ij", C, C)], axis=1)], axis=0)
-        Bw = jnp.concatenate([b0[0] * w_prev[:n] + b1[0] * w_prev[n:], b2[0] * w_prev[n:]])
+        Bw = jnp.concatenate([b0 * w_prev[:n] + b1 * w_prev[n:], b2 * w_prev[n:]])
         w = matmul(P, rhs_s - Bw)  # P_s z_s
         return (P, w), (P, w)
 
