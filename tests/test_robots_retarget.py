@@ -105,29 +105,29 @@ def test_a_retargeting_step_with_ground_rows_against_its_dense_model():
     delta, ok, predicted, touched = _step(*(jnp.asarray(v) for v in (JtJ, g, c, a, np.ones((T, n)), mu)), ground,
                                           jnp.asarray(touching))
     assert bool(ok)
-    # the model's Hessian: the frames' J'J, velocity and acceleration terms, and the touching points' rows
-    H = np.zeros((T * n, T * n))
+    # the model's Hessian: the frames' J'J, velocity and acceleration terms (Hs), and the touching points' rows (H)
+    Hs = np.zeros((T * n, T * n))
     blk = lambda t: slice(t * n, (t + 1) * n)  # noqa: E731
     for t in range(T):
-        H[blk(t), blk(t)] += JtJ[t] + np.einsum("p,pi,pj->ij", touching[t], jz[t], jz[t])
+        Hs[blk(t), blk(t)] += JtJ[t]
     for t in range(T - 1):
         for i in range(n):
             d = np.zeros(T * n)
             d[(t + 1) * n + i], d[t * n + i] = 1.0, -1.0
-            H += c[t, i] * np.outer(d, d)
+            Hs += c[t, i] * np.outer(d, d)
     for t in range(T - 2):
         for i in range(n):
             d = np.zeros(T * n)
             d[(t + 2) * n + i], d[(t + 1) * n + i], d[t * n + i] = 1.0, -2.0, 1.0
-            H += a[t, i] * np.outer(d, d)
+            Hs += a[t, i] * np.outer(d, d)
+    H = Hs.copy()
+    for t in range(T):
+        H[blk(t), blk(t)] += np.einsum("p,pi,pj->ij", touching[t], jz[t], jz[t])
     rhs = g + np.einsum("tp,tp,tpi->ti", touching, hs, jz)
     damped = H + np.diag(mu * np.diag(H) + mu * 1e-9 + 1e-12)
     expected = np.linalg.solve(damped, -rhs.ravel())
     np.testing.assert_allclose(np.asarray(delta).ravel(), expected, rtol=1e-9, atol=1e-12)
     # the decrease of the model with one-sided ground rows: sum over the touching points of min(0, h + jz delta)^2 / 2
-    Hs = H.copy()
-    for t in range(T):
-        Hs[blk(t), blk(t)] -= np.einsum("p,pi,pj->ij", touching[t], jz[t], jz[t])
     dx = expected
     h_new = hs + np.einsum("tpi,ti->tp", jz, dx.reshape(T, n))
     model = g.ravel() @ dx + 0.5 * dx @ Hs @ dx + 0.5 * np.sum(touching * np.minimum(h_new, 0.0) ** 2)
