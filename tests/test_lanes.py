@@ -16,6 +16,7 @@ import solvers
 from solvers import problems
 from solvers._iterate import iterate
 from solvers._lanes import hoist_closure, while_loop
+from solvers._riccati import _DOUBLING_LANES
 
 _LANES = 8
 _B = 3 * _LANES + 5  # more problems than lanes, not a multiple of them
@@ -85,13 +86,13 @@ def test_iterate_adaptive_under_vmap_equals_per_element_runs():
 
 def test_batched_dare_equals_one_system_solves():
     rng = np.random.default_rng(3)
-    n, m, count = 4, 2, 140  # past the default 128 lanes
+    n, m, count = 4, 2, _DOUBLING_LANES + 12  # past the doubling's lanes
     A = rng.standard_normal((count, n, n)) * 0.6
     B = rng.standard_normal((count, n, m))
     Q, R = np.eye(n), np.eye(m)
     sol = jax.jit(jax.vmap(lambda A, B: solvers.dare(A, B, Q, R)))(A, B)
     one = jax.jit(lambda A, B: solvers.dare(A, B, Q, R))
-    for i in (0, 128, count - 1):
+    for i in (0, _DOUBLING_LANES, count - 1):
         s = one(A[i], B[i])
         np.testing.assert_allclose(np.asarray(sol.P[i]), np.asarray(s.P), rtol=1e-12, atol=1e-12)
         assert int(sol.stats["num_steps"][i]) == int(s.stats["num_steps"])
