@@ -160,6 +160,27 @@ def test_rollout_stops_a_blown_up_character_and_vmap_sweeps_gains():
     assert run.result == physics.SimResult.nonfinite and int(run.num_steps) == 0
 
 
+def test_a_batch_past_the_rollout_chunk_equals_one_rollout_at_a_time():
+    """Under ``vmap`` a batch larger than ``ROLLOUT_LANES`` runs in chunks (``solvers.lane_map``, padded at
+    the end): every character keeps its own trajectory and status, in input order."""
+    from jaxanim.physics._rollout import ROLLOUT_LANES
+
+    model, state, _ = _chain()
+    count = ROLLOUT_LANES + 6  # one full chunk and a padded one
+    kp = jnp.asarray(np.where(np.arange(count) % 5 == 3, 300.0, np.linspace(1.0, 20.0, count)))  # some stiff
+    kd = jnp.asarray(np.where(np.arange(count) % 5 == 3, 10.0, 0.5))
+    runs = jax.vmap(lambda kp, kd: physics.rollout(model, state, 1 / 120, 60, record_every=20,
+                                                   controller=_pd_controller, controller_args=(kp, kd)))(kp, kd)
+    assert runs.trajectory.position.shape == (count, 3) + state.position.shape
+    codes = np.asarray(runs.result._value)
+    assert 0 < np.sum(codes == physics.SimResult.exploded._value) < count
+    for i in (0, 3, ROLLOUT_LANES - 1, ROLLOUT_LANES, count - 2, count - 1):
+        one = physics.rollout(model, state, 1 / 120, 60, record_every=20, controller=_pd_controller,
+                              controller_args=(kp[i], kd[i]))
+        assert int(one.result._value) == codes[i] and int(one.num_steps) == int(runs.num_steps[i])
+        np.testing.assert_allclose(one.trajectory.position, runs.trajectory.position[i], rtol=1e-12, atol=1e-12)
+
+
 def _with_nan(state):
     return rigid.BodyState(position=state.position.at[1, 0].set(jnp.nan), orientation=state.orientation,
                            linear_velocity=state.linear_velocity, angular_velocity=state.angular_velocity,

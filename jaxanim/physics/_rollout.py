@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+import solvers
+
 from .._errors import JaxanimError
 from ._bodies import BodyState
 from ._model import PhysicsModel
@@ -58,31 +60,42 @@ def _finite_state(s: BodyState) -> Array:
     )
 
 
+#: Characters per chunk of a batched rollout (:func:`solvers.lane_map`): under ``vmap`` with a larger batch the
+#: rollout runs ``lax.map`` over chunks of this many, whose working set (the tree solve's ``[chunk, bodies, 6, 25]``
+#: blocks with the contact rows) stays in cache, where the whole batch's streams from memory. Measured on the 2-core
+#: CPU, standing character, 1024 characters, us per character-step: complementarity on 8 points 95 unchunked,
+#: 72 / 69 / 68 / 75 in chunks of 128 / 64 / 32 / 16; penalty 27 unchunked, 21.5 / 21.0 in chunks of 256 / 64.
+ROLLOUT_LANES = 64
+
+
 @eqx.filter_jit
 def _rollout(model, state, h, num_steps, record_every, controller, controller_args, max_speed, max_angular_speed):
-    def inner(carry, _):
-        s, code, count = carry
-        u = None if controller is None else controller(s, count, controller_args)
-        new = _step(model, s, control_for(model, u), h)
-        finite = _finite_state(new)
-        fast = (jnp.max(jnp.abs(new.linear_velocity)) > max_speed) | (
-            jnp.max(jnp.abs(new.angular_velocity)) > max_angular_speed
-        )
-        running = code == 0
-        new_code = jnp.where(running, jnp.where(~finite, 1, jnp.where(fast, 2, 0)), code)
-        ok = running & (new_code == 0)
-        s = jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, s)
-        return (s, new_code, count + ok.astype(count.dtype)), None
+    def run(state, h, controller_args, max_speed, max_angular_speed):
+        def inner(carry, _):
+            s, code, count = carry
+            u = None if controller is None else controller(s, count, controller_args)
+            new = _step(model, s, control_for(model, u), h)
+            finite = _finite_state(new)
+            fast = (jnp.max(jnp.abs(new.linear_velocity)) > max_speed) | (
+                jnp.max(jnp.abs(new.angular_velocity)) > max_angular_speed
+            )
+            running = code == 0
+            new_code = jnp.where(running, jnp.where(~finite, 1, jnp.where(fast, 2, 0)), code)
+            ok = running & (new_code == 0)
+            s = jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, s)
+            return (s, new_code, count + ok.astype(count.dtype)), None
 
-    def outer(carry, _):
-        carry, _ = jax.lax.scan(inner, carry, None, length=record_every)
-        return carry, carry[0]
+        def outer(carry, _):
+            carry, _ = jax.lax.scan(inner, carry, None, length=record_every)
+            return carry, carry[0]
 
-    init = (state, jnp.where(_finite_state(state), 0, 1), jnp.zeros((), jnp.int32))
-    (final, code, count), traj = jax.lax.scan(outer, init, None, length=num_steps // record_every)
-    result = SimResult.where(code == 0, SimResult.successful, SimResult.where(code == 1, SimResult.nonfinite,
-                                                                               SimResult.exploded))
-    return Rollout(final=final, trajectory=traj, result=result, num_steps=count)
+        init = (state, jnp.where(_finite_state(state), 0, 1), jnp.zeros((), jnp.int32))
+        (final, code, count), traj = jax.lax.scan(outer, init, None, length=num_steps // record_every)
+        result = SimResult.where(code == 0, SimResult.successful, SimResult.where(code == 1, SimResult.nonfinite,
+                                                                                   SimResult.exploded))
+        return Rollout(final=final, trajectory=traj, result=result, num_steps=count)
+
+    return solvers.lane_map(run, state, h, controller_args, max_speed, max_angular_speed, lanes=ROLLOUT_LANES)
 
 
 def rollout(
