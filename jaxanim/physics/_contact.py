@@ -24,8 +24,6 @@ impulse projected onto the disc of radius ``mu lambda_n``.
 
 from __future__ import annotations
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -196,71 +194,11 @@ def projected_gauss_seidel(S: Array, rhs: Array, mu: Array, iterations: int, num
     lambda_n`` with the tangential ``w_t`` driven to zero where it is not on the disc's edge.
 
     Each sweep visits the points in order; at a point the normal row, then the two tangent rows
-    are relaxed in turn (Gauss-Seidel within the point too), then the tangential impulse is
-    projected onto the disc of radius ``mu lambda_n``. The last ``num_single`` rows are one-sided
-    rows without friction (``lambda >= 0``, ``w >= 0``, ``lambda w = 0``; joint limits), relaxed
-    after the points in each sweep. ``iterations`` sweeps from zero (static, so it vmaps).
-
-    Two forms of the same sweeps, equal to round-off (tests/test_contact.py): the values come from
-    :func:`_pgs_scalar`, a few fused loops per point under ``vmap``; derivatives (``jvp``, and
-    ``grad`` through it) differentiate :func:`_pgs_sliced`, a loop over the points whose
-    differentiated program is far smaller (the scalar form's derivative compiled 3.5 s slower in
-    ``tracking.linearize``)."""
-    return _pgs(S, rhs, jnp.asarray(mu), iterations, num_single)
-
-
-@functools.partial(jax.custom_jvp, nondiff_argnums=(3, 4))
-def _pgs(S, rhs, mu, iterations, num_single):
-    return _pgs_scalar(S, rhs, mu, iterations, num_single)
-
-
-@_pgs.defjvp
-def _pgs_jvp(iterations, num_single, primals, tangents):
-    return jax.jvp(lambda S, rhs, mu: _pgs_sliced(S, rhs, mu, iterations, num_single), primals, tangents)
-
-
-def _point(o0, o1, o2, w0, w1, w2, d, mu):
-    """One point's relaxation from its impulses ``o`` and residuals ``w`` (``d`` its ``3 x 3`` block)."""
-    ln = jnp.maximum(o0 - w0 / d[0, 0], 0.0)
-    dn = ln - o0
-    l1 = o1 - (w1 + d[1, 0] * dn) / d[1, 1]
-    d1 = l1 - o1
-    l2 = o2 - (w2 + d[2, 0] * dn + d[2, 1] * d1) / d[2, 2]
-    norm = jnp.sqrt(l1 * l1 + l2 * l2)
-    scale = jnp.where(norm > mu * ln, mu * ln / jnp.where(norm > 0, norm, 1.0), 1.0)
-    return ln, l1 * scale, l2 * scale
-
-
-def _pgs_scalar(S, rhs, mu, iterations, num_single):
-    """The sweeps with every impulse its own scalar (under ``vmap`` a ``[batch]`` vector) and the residual
-    ``w = S lambda - rhs`` kept as a vector, updated by each point's change times its three columns of
-    ``S``: a point is a few fused loops, without the dynamic slices and scatters into ``lambda`` of
-    :func:`_pgs_sliced` (1.5-2x faster under ``vmap`` on XLA:CPU; the 8-point rollout 73 -> 60 us per
-    character-step at 1024)."""
-    n = rhs.shape[0]
-    K = (n - num_single) // 3
-
-    def sweep(_, carry):
-        lam, w = carry
-        lam = [lam[i] for i in range(n)]
-        for k in range(K):
-            u = 3 * k
-            old = lam[u:u + 3]
-            lam[u:u + 3] = _point(*old, w[u], w[u + 1], w[u + 2], S[u:u + 3, u:u + 3], mu)
-            for a in range(3):
-                w = w + S[:, u + a] * (lam[u + a] - old[a])
-        for i in range(3 * K, n):
-            new = jnp.maximum(lam[i] - w[i] / S[i, i], 0.0)
-            w = w + S[:, i] * (new - lam[i])
-            lam[i] = new
-        return jnp.stack(lam), w
-
-    return jax.lax.fori_loop(0, iterations, sweep, (jnp.zeros_like(rhs), -rhs))[0]
-
-
-def _pgs_sliced(S, rhs, mu, iterations, num_single):
-    """The sweeps as a loop over the points, each reading its rows' residual from one ``3 x n`` product
-    and writing its impulses back into ``lambda`` (the derivative's form)."""
+    are relaxed in turn (Gauss-Seidel within the point too, from one ``3 x 3K`` product), then the
+    tangential impulse is projected onto the disc of radius ``mu lambda_n``. The last
+    ``num_single`` rows are one-sided rows without friction (``lambda >= 0``, ``w >= 0``,
+    ``lambda w = 0``; joint limits), relaxed after the points in each sweep. ``iterations`` sweeps
+    from zero (static, so it vmaps)."""
     n = rhs.shape[0]
     K = (n - num_single) // 3
     S3 = S[: 3 * K].reshape(K, 3, n)
@@ -270,9 +208,16 @@ def _pgs_sliced(S, rhs, mu, iterations, num_single):
 
     def point(k, lam):
         w = jnp.sum(S3[k] * lam[None, :], axis=-1) - rhs3[k]  # [3]; a fused product, also under vmap
+        d = blocks[k]
         old = jax.lax.dynamic_slice(lam, (3 * k,), (3,))
-        new = _point(old[0], old[1], old[2], w[0], w[1], w[2], blocks[k], mu)
-        return jax.lax.dynamic_update_slice(lam, jnp.stack(new), (3 * k,))
+        ln = jnp.maximum(old[0] - w[0] / d[0, 0], 0.0)
+        dn = ln - old[0]
+        l1 = old[1] - (w[1] + d[1, 0] * dn) / d[1, 1]
+        d1 = l1 - old[1]
+        l2 = old[2] - (w[2] + d[2, 0] * dn + d[2, 1] * d1) / d[2, 2]
+        norm = jnp.sqrt(l1 * l1 + l2 * l2)
+        scale = jnp.where(norm > mu * ln, mu * ln / jnp.where(norm > 0, norm, 1.0), 1.0)
+        return jax.lax.dynamic_update_slice(lam, jnp.stack([ln, l1 * scale, l2 * scale]), (3 * k,))
 
     def single(i, lam):
         return lam.at[i].set(jnp.maximum(lam[i] - (jnp.sum(S[i] * lam) - rhs[i]) / diag[i], 0.0))
