@@ -405,13 +405,19 @@ KERNELS: tuple[Kernel, ...] = (
     Kernel("rollout (penalty)", "float64", 1024, "physics: penalty ≤ 0.5x MuJoCo C", _physics("penalty"),
            "Every step eliminates the joint-constrained system level by level of the body tree (6x6 articulated "
            "inertias folded into the parents, then back-substitution), then the contact forces of every contact "
-           "point: hundreds of small fusions per step on [B, bodies, 6, 6] blocks, none dominant (see the top "
-           "shares), so the step is bound by the number of kernels and their strided 6-wide rows."),
+           "point: hundreds of small fusions per step on [bodies, 6, 6] blocks, none dominant (see the top "
+           "shares), so the step is bound by the number of kernels and their strided 6-wide rows. A batch of "
+           "1024 runs in chunks of 64 characters (`physics._rollout.ROLLOUT_LANES`: the whole batch's blocks "
+           "streamed from memory), so every kernel runs 16 times per step on 64 characters each."),
     Kernel("rollout (complementarity:8)", "float64", 1024, "physics: complementarity:8 ≤ 1x MuJoCo C",
            _physics("complementarity:8"),
-           "On top of the tree solve, the contact rows are solved by projected Gauss-Seidel, a fixed number of "
-           "sweeps every step, each row after the other (sequential by nature): thousands of tiny kernels per "
-           "call (the instruction count above) on a handful of numbers each."),
+           "On top of the tree solve (the penalty row's cause), the contact rows are solved by projected "
+           "Gauss-Seidel, a fixed number of sweeps every step, point after point (sequential by nature): each "
+           "point's update is a handful of kernels (its rows' product, divides, the write into the impulses), each "
+           "on one chunk's 64 characters, so the per-instruction cost of the XLA:CPU runtime sets the time (the "
+           "count above). Wider chunks spread it over more "
+           "characters but stream the tree solve's blocks from memory (measured slower: the chunk constant's "
+           "comment in `jaxanim/physics/_rollout.py`)."),
     Kernel(f"SAMCON search, {SEARCH_PROFILED_WINDOWS} window", "float64", 256,
            "tracking: SAMCON search per character-step ≤ 1.5x the plain step (issue 32)", _samcon_search,
            "Each sample's physics step solves the joint tree and the contact rows once, and again in the torque-limit "
