@@ -97,7 +97,8 @@ def while_loop(cond: Callable[[Any], Any], body: Callable[[Any], Any], init: Any
     return routed(init, *cond_consts, *body_consts)
 
 
-def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bool = True) -> Any:
+def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bool = True,
+             reverse: bool = False) -> Any:
     """``fun(*args)``, whose batched calls run ``lanes`` problems at a time (a ``lax.map`` over chunks).
 
     Beside a compacted :func:`while_loop`, the work before and after the loop (an initial
@@ -108,6 +109,11 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
     ``jax.vmap(fun)``; small batches (at most ``lanes``) and other backends than the CPU take the
     plain vmap. ``chunks=False`` (static) is ``fun(*args)`` itself: beside a loop that is not
     compacted (a ``fixed_steps`` scan runs at the batch's shapes, which the plain call has).
+
+    Differentiated, it is ``fun`` itself, plainly vmapped: by default through a custom JVP (forward
+    and reverse mode); ``reverse=True`` (static) through a custom VJP instead, for a ``fun`` that has
+    only a reverse-mode derivative (a checkpointed while loop): the backward pass is ``jax.vjp`` of
+    ``fun`` on the saved inputs (the forward run again), and forward mode is unavailable.
     """
     if not chunks:
         return fun(*args)
@@ -142,6 +148,10 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
         return out, jax.tree.map(lambda _: True, out)
 
     # custom_vmap has no derivative rule: differentiated, it is fun itself (plainly vmapped)
+    if reverse:
+        reversible = jax.custom_vjp(lambda *a: routed(*a))
+        reversible.defvjp(lambda *a: (routed(*a), a), lambda a, ct: jax.vjp(fun_of, *a)[1](ct))
+        return reversible(*args, *consts)
     differentiable = eqx.filter_custom_jvp(lambda *a: routed(*a))
 
     @differentiable.def_jvp

@@ -138,6 +138,39 @@ def test_lane_map_equals_vmap_in_chunks():
     np.testing.assert_allclose(np.asarray(one[0]), np.asarray(ref[0][3]), rtol=1e-15)
 
 
+def test_lane_map_reverse_chunks_a_reverse_mode_only_loop_and_keeps_its_gradient():
+    """``lane_map(reverse=True)`` around a checkpointed while loop (no forward mode): batched values in chunks
+    equal ``jax.vmap`` of the loop, and ``jax.grad`` through the chunked call (a custom VJP: the loop's own
+    reverse pass) equals the plain gradient, with an integer output in the result."""
+    import equinox.internal as eqxi
+
+    from solvers._lanes import lane_map
+
+    def newton(a, s):  # sqrt(a) * s by Newton's iteration, adaptive: each element its own trip count
+        def body(c):
+            x, k = c
+            return 0.5 * (x + a / x), k + 1
+
+        x, k = eqxi.while_loop(lambda c: jnp.abs(c[0] * c[0] - a) > 1e-12 * a, body, (a + 1.0, jnp.asarray(0)),
+                               max_steps=200, kind="checkpointed")
+        return x * s, k
+
+    def chunked(a, s):
+        return lane_map(newton, a, s, lanes=_LANES, reverse=True)
+
+    s = jnp.linspace(0.5, 1.5, _B)
+    got, ref = jax.jit(jax.vmap(chunked))(_A, s), jax.jit(jax.vmap(newton))(_A, s)
+    np.testing.assert_allclose(np.asarray(got[0]), np.asarray(ref[0]), rtol=1e-15)
+    np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(ref[1]))
+    assert len(set(np.asarray(ref[1]).tolist())) > 3  # trip counts differ
+    loss = lambda f: lambda a, s: jnp.sum(jax.vmap(f)(a, s)[0] ** 2)  # noqa: E731
+    ga, gs = jax.jit(jax.grad(loss(chunked), argnums=(0, 1)))(_A, s)
+    ra, rs = jax.jit(jax.grad(loss(newton), argnums=(0, 1)))(_A, s)
+    np.testing.assert_allclose(np.asarray(ga), np.asarray(ra), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(gs), np.asarray(rs), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(gs), 2 * s * _A, rtol=1e-9)  # d/ds (sqrt(a) s)^2
+
+
 def test_repeat_while_equals_the_passes_one_by_one():
     """``repeat_while`` under vmap (more problems than lanes; no problem, a few and most of them needing the later
     passes; a batched and a shared closed-over value) equals each problem's one-instance call, which equals the

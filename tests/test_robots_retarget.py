@@ -212,15 +212,23 @@ def test_walk_onto_the_shipped_humanoid_plants_its_feet(walk):
 
 
 def test_padded_clips_equal_the_clip_alone(tiny):
+    """Three clips padded to one length: more than a chunk of the batched solve (``RETARGET_LANES``), so the
+    last chunk is padded too; each clip equals its solve alone."""
+    from jaxanim.robots._retarget_solve import RETARGET_LANES
+
     skel, motion, robot, mapping, options = tiny
     short = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
     long = jaxanim.Motion(motion.rotations[:16], motion.translations[:16], motion.frame_time)
-    batch = robots.retarget_clips(skel, [long, short], robot, mapping, options=options)
-    alone = robots.solve_retarget(robot, robots.prepare_retarget(skel, short, robot, mapping), options)
-    assert batch[1].qpos.shape == alone.qpos.shape == (12, robot.nq)
-    np.testing.assert_allclose(np.asarray(batch[1].qpos), np.asarray(alone.qpos), atol=1e-8)
-    np.testing.assert_allclose(np.asarray(batch[1].diagnostics.position_error),
-                               np.asarray(alone.diagnostics.position_error), atol=1e-8)
+    middle = jaxanim.Motion(motion.rotations[2:16], motion.translations[2:16], motion.frame_time)
+    clips = [long, short, middle]
+    assert len(clips) > RETARGET_LANES and len(clips) % RETARGET_LANES
+    batch = robots.retarget_clips(skel, clips, robot, mapping, options=options)
+    for i, clip in ((1, short), (2, middle)):
+        alone = robots.solve_retarget(robot, robots.prepare_retarget(skel, clip, robot, mapping), options)
+        assert batch[i].qpos.shape == alone.qpos.shape == (clip.num_frames, robot.nq)
+        np.testing.assert_allclose(np.asarray(batch[i].qpos), np.asarray(alone.qpos), atol=1e-8)
+        np.testing.assert_allclose(np.asarray(batch[i].diagnostics.position_error),
+                                   np.asarray(alone.diagnostics.position_error), atol=1e-8)
 
 
 def test_cmu_clip_onto_the_g1():
