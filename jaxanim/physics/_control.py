@@ -47,8 +47,8 @@ class StablePD(eqx.Module):
         kd: ``[joints]`` (or a scalar) damping, N m s / rad (``kp = kd = 0``: that joint is not driven).
         torque_limit: optional ``[joints]`` (or a scalar) bound on the norm of each joint's
             stable-PD torque, N m (``inf``: unbounded). A joint whose implicit torque would exceed
-            it gets that torque scaled onto the bound instead, applied explicitly (one active-set
-            pass: the step solves the constraints once more). ``None``: no bound, one solve.
+            it gets that torque scaled onto the bound instead, applied explicitly (active-set
+            passes: the step solves the constraints again, up to twice). ``None``: no bound, one solve.
     """
 
     targets: Float[Array, "joints 4"] = eqx.field(converter=jnp.asarray)
