@@ -382,6 +382,7 @@ def _solve(robot: Robot, prob: RetargetProblem, opts: RetargetOptions):
     frames = _frames(prob, opts, dtype)
     cones = robot.jnt_range.astype(dtype)[lay.cone_joints, 1]
     q = jax.vmap(lambda q: _retract(lay, rng, q, jnp.zeros(robot.nv, dtype), cones))(_initial(robot, prob, dtype))
+
     def iterate(q, prob):
         return _iterate(robot, prob, lay, rng, q, frames, opts, dtype)
 
