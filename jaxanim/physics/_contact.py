@@ -33,7 +33,7 @@ from jaxtyping import Array, Float
 from .._errors import JaxanimError
 from ._bodies import BodyState, RigidBodies
 from .. import rotations as rot
-from .._linalg import matmul
+from .._linalg import einsum, matmul
 
 __all__ = ["CONTACT_MODELS", "Ground", "contact_points", "make_ground"]
 
@@ -207,7 +207,7 @@ def projected_gauss_seidel(S: Array, rhs: Array, mu: Array, iterations: int, num
     diag = jnp.diagonal(S)
 
     def point(k, lam):
-        w = jnp.sum(S3[k] * lam[None, :], axis=-1) - rhs3[k]  # [3]; a fused product, also under vmap
+        w = einsum("in,n->i", S3[k], lam) - rhs3[k]  # [3]
         d = blocks[k]
         old = jax.lax.dynamic_slice(lam, (3 * k,), (3,))
         ln = jnp.maximum(old[0] - w[0] / d[0, 0], 0.0)
