@@ -119,14 +119,31 @@ def _implicit_jvp(plan, scan_levels, primals, tangents):
     V, lam = _substitute(plan, factors, p, Jp, Jc, b, scan_levels)
     parent, child = plan.parent, plan.child
     jointed = np.flatnonzero(parent >= 0)
-    rhs_p = (dp - matmul(dM, V)).at[child].add(matmul(jnp.swapaxes(dJc, -1, -2), lam))
-    rhs_b = db - matmul(dJc, V[child]) - dC[..., None] * lam
+    rhs_p = _add_rows(dp - _bmm(dM, V), child, _bmm(jnp.swapaxes(dJc, -1, -2), lam))
+    rhs_b = db - _bmm(dJc, V[child]) - dC[..., None] * lam
     if jointed.size:
         pa = parent[jointed]
-        rhs_p = rhs_p.at[pa].add(matmul(jnp.swapaxes(dJp[jointed], -1, -2), lam[jointed]))
-        rhs_b = rhs_b.at[jointed].add(-matmul(dJp[jointed], V[pa]))
+        rhs_p = _add_rows(rhs_p, pa, _bmm(jnp.swapaxes(dJp[jointed], -1, -2), lam[jointed]))
+        rhs_b = _add_rows(rhs_b, jointed, -_bmm(dJp[jointed], V[pa]))
     dV, _ = _substitute(plan, factors, rhs_p, Jp, Jc, rhs_b, scan_levels)
     return V, dV
+
+
+def _add_rows(a, idx, x):
+    """``a.at[idx].add(x)`` for a static ``idx``, as gathers of ``x``'s rows (a zero row where a row of ``a``
+    gets nothing; one gather per repeat of an index): elementwise, so XLA:CPU fuses it with the arithmetic
+    around it, where a scatter is a pass of its own over the whole of ``a`` (under ``jacfwd``, ``a`` is every
+    tangent's right-hand sides)."""
+    idx = np.asarray(idx)
+    xz = jnp.concatenate([x, jnp.zeros((1,) + x.shape[1:], x.dtype)])
+    left = np.arange(idx.size)
+    while left.size:
+        first = np.unique(idx[left], return_index=True)[1]
+        pos = np.full(a.shape[0], idx.size)
+        pos[idx[left[first]]] = left[first]
+        a = a + xz[pos]
+        left = np.delete(left, first)
+    return a
 
 
 def _tree_solve_multipliers(plan: _TreePlan, M, p, Jp, Jc, b, C, scan_levels: bool = False):
