@@ -22,7 +22,6 @@ import numpy as np
 from .. import _tree
 from .._errors import JaxanimError
 from ._bodies import _bmm, _spd_inverse
-from .._linalg import matmul
 
 
 class _TreePlan(NamedTuple):
