@@ -379,11 +379,13 @@ KERNELS: tuple[Kernel, ...] = (
            "solve, a scan over pairs of frames, sequential in time, whose every step inverts a block of twice the "
            "robot's dofs for each clip by its halves (two Cholesky factorizations and triangular inverses of the "
            "dofs' size, looped over the batch, and the small `ki,kj->ij` products), at a fraction of the CPU's "
-           "peak because the blocks are small; the solve costs somewhat more than the linearization. Under `vmap` every clip runs until the slowest has converged, and the slowest "
-           "spend their last iterations on the wrists' pitch, which moves the matched wrist point by millimetres "
-           "per radian. mink does per frame a few QPs of the dofs' size in C; the whole-clip solve does more "
-           "arithmetic per frame for what the per-frame solve cannot give (planted feet, smoothness over the "
-           "clip), so on two cores it trails mink's speed."),
+           "peak because the blocks are small; the solve costs somewhat more than the linearization. Under `vmap` "
+           "the clips run in chunks of `RETARGET_LANES` (`jaxanim/robots/_retarget_solve.py`), each chunk until all "
+           "of its clips have converged; the iterations are few and alike across clips since the normal equations "
+           "carry the positive second-order diagonal (no rejected steps on these clips). mink does per frame a few "
+           "QPs of the dofs' size in C; the whole-clip solve does more arithmetic per frame for what the per-frame "
+           "solve cannot give (planted feet, smoothness over the clip), so on two cores it trails the issue's "
+           "target."),
     Kernel("iLQR unicycle, T = 200", "float64", 1, "oc: one unicycle solve ≤ 1.5x Crocoddyl", _unicycle,
            "Per iteration three scans over 200 knots (backward pass, adjoint gradient, line-search rollout), each "
            "knot tens of XLA instructions on 2- and 3-vectors: a call runs tens of thousands of instructions of "
