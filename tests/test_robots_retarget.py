@@ -4,6 +4,7 @@ feet, ground, ranges), batching with padding, the gradient against finite differ
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -379,6 +380,12 @@ def test_bad_input_is_named(walk):
     with pytest.raises(jaxanim.JaxanimError, match="options.plant_weight"):
         robots.retarget(skel, motion, robot, robots.default_mapping_path(),
                         options=robots.RetargetOptions(plant_weight=-1.0))
+    # an orientation weight set after preparing, on a target the map had left without one: refused, not ignored
+    problem = robots.prepare_retarget(skel, motion, robot, robots.default_mapping_path())
+    off = next(k for k in range(len(problem.names)) if k not in problem.oriented)
+    later = eqx.tree_at(lambda p: p.orientation_weight, problem, problem.orientation_weight.at[off].set(0.3))
+    with pytest.raises(jaxanim.JaxanimError, match=rf"problem.orientation_weight: .*{problem.names[off]}"):
+        robots.solve_retarget(robot, later)
 
 
 def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):

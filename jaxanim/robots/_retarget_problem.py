@@ -43,6 +43,9 @@ class RetargetProblem(eqx.Module):
         feet: ``[F]`` the target index of each foot pair (static).
         foot_points: ``[F]`` the robot's surface points of each foot: its body's and its descendants'
             (indices into ``Robot.point_pos``; static).
+        oriented: the targets with orientation terms (static): the feet and those whose orientation weight
+            was not 0 when the problem was prepared. A weight that was 0 then stays off: the solve has no rows
+            for it (:func:`solve_retarget` refuses a problem whose weight was set later).
         positions: ``[T, K, 3]`` the source joints in the robot's axes, above the source's ground, in
             source units (the target is ``scale * positions + lift * z``).
         orientations: ``[T, K, 4]`` wxyz world orientation targets (``axes R_source offset``).
@@ -66,6 +69,7 @@ class RetargetProblem(eqx.Module):
     rows: tuple[int, ...] = eqx.field(static=True)
     feet: tuple[int, ...] = eqx.field(static=True)
     foot_points: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    oriented: tuple[int, ...] = eqx.field(static=True)
     positions: Float[Array, "T K 3"]
     orientations: Float[Array, "T K 4"]
     position_weight: Float[Array, " K"]
@@ -232,6 +236,7 @@ def prepare_retarget(
 
     return RetargetProblem(
         names=full.targets, bodies=bodies, rows=rows, feet=tuple(feet_k), foot_points=tuple(foot_points),
+        oriented=tuple(k for k in range(K) if full.feet[k] or float(full.orientation_weight[k]) != 0.0),
         positions=jnp.asarray(padded(P), dtype), orientations=jnp.asarray(padded(_quat(R_target)), dtype),
         position_weight=jnp.asarray(full.position_weight, dtype),
         orientation_weight=jnp.asarray(full.orientation_weight, dtype),
@@ -262,7 +267,7 @@ def stack_problems(problems: Sequence[RetargetProblem]) -> RetargetProblem:
     for i, p in enumerate(problems):
         if not isinstance(p, RetargetProblem):
             raise JaxanimError(f"problems[{i}]: expected a RetargetProblem, got {type(p).__name__}")
-        if (p.names, p.feet, p.foot_points) != (first.names, first.feet, first.foot_points):
+        if (p.names, p.feet, p.foot_points, p.oriented) != (first.names, first.feet, first.foot_points, first.oriented):
             raise JaxanimError(f"problems[{i}]: prepared with another robot or map than problems[0]")
         if p.num_frames != first.num_frames:
             raise JaxanimError(f"problems[{i}]: {p.num_frames} frames, problems[0] has {first.num_frames}; pad them to "

@@ -49,6 +49,7 @@ import numpy as np
 import solvers
 
 from .. import rotations as rot
+from .._errors import JaxanimError
 from .._linalg import einsum
 from .._types import Array, Float
 from ._kinematics import _dof_columns, _kinematics, _mm, _surface, _target_frames
@@ -141,15 +142,14 @@ def _sqrt(w):
 
 
 class _Frame(eqx.Module):
-    """One frame's targets and weights (the per-frame slice of a problem; vmapped)."""
+    """One frame's targets and weights (the per-frame slice of a problem; vmapped). A foot's matching and planting
+    terms never hold at once (its matching is off while it is planted), so each foot has one set of rows whose
+    target and weight are the plant's in stance and the matching's otherwise."""
 
-    p: Array  # [K, 3]
-    R: Array  # [K, 3, 3]
+    p: Array  # [K, 3] position targets (a planted foot's: its anchor)
+    R: Array  # [O, 3, 3] orientation targets of the targets ``prob.oriented`` (a planted foot's: its anchor's)
     wp: Array  # [K]
-    wo: Array  # [K]
-    anchor_p: Array  # [F, 3]
-    anchor_R: Array  # [F, 3, 3]
-    w_plant: Array  # [F]
+    wo: Array  # [O]
     w_ground: Array  # [F]
     w_posture: Array  # []
 
@@ -160,59 +160,58 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
     them. ``ground`` is every foot point's weighted height and height row ``(sqrt(w) h [P], sqrt(w) dh/dq [P, nv])``
     and whether the point is above the ground's soft band (``[P]`` bool: its row in ``J`` is zero).
     ``curvature`` is the positive part of the diagonal of ``sum_rows r d2r/dq_d^2`` over the position rows
-    (matching, planted feet, ground; the ground's slope held), which :func:`_frame_normal` adds to ``J'J``."""
+    (matching and planted feet, ground; the ground's slope held), which :func:`_frame_normal` adds to ``J'J``.
+    Orientation rows are those of ``prob.oriented`` only: a target whose orientation weight was 0 when the problem
+    was prepared has none (on the G1's walk map 6 of 10 targets, 18 of the 80 rows)."""
     dtype = q.dtype
     kin = _kinematics(robot, q, dtype)
-    bodies = prob.bodies
+    bodies, oriented = prob.bodies, np.asarray(prob.oriented, np.int64)
     points, R = _target_frames(robot, kin[0], kin[1], bodies, prob.rows, dtype)
-    feet = list(prob.feet)
     pts_idx = [i for f in prob.foot_points for i in f]
     surface, height = _surface(robot, kin[0], kin[1], pts_idx, dtype)
-    e_match = rot.matrix_to_rotvec(_mm(R, jnp.swapaxes(fr.R, -1, -2)))
-    e_plant = rot.matrix_to_rotvec(_mm(R[np.asarray(feet)], jnp.swapaxes(fr.anchor_R, -1, -2)))
-    sp, so, spl = _sqrt(fr.wp)[:, None], _sqrt(fr.wo)[:, None], _sqrt(fr.w_plant)[:, None]
+    e_ori = rot.matrix_to_rotvec(_mm(R[oriented], jnp.swapaxes(fr.R, -1, -2)))
+    sp, so = _sqrt(fr.wp)[:, None], _sqrt(fr.wo)[:, None]
     owner = np.asarray([f for f, idx in enumerate(prob.foot_points) for _ in idx])
     sg = _sqrt(fr.w_ground)[owner]
-    soft = _GROUND_SOFTNESS
-    ground, slope = _ground(height, soft)
+    ground, slope = _ground(height, _GROUND_SOFTNESS)
     posture = q[lay.joint_q] - robot.qpos0.astype(dtype)[lay.joint_q]
-    r = jnp.concatenate([
-        (sp * (points - fr.p)).ravel(), (so * e_match).ravel(),
-        (spl * (points[np.asarray(feet)] - fr.anchor_p)).ravel(), (spl * e_plant).ravel(),
-        sg * ground])
+    r = jnp.concatenate([(sp * (points - fr.p)).ravel(), (so * e_ori).ravel(), sg * ground])
     dofs = np.arange(robot.nv)
     jacp, jacr = _dof_columns(robot, kin, points, bodies, dofs, dtype)  # [K, nv, 3]
     jsp, jsr = _dof_columns(robot, kin, surface, [robot.point_bodies[i] for i in pts_idx], dofs, dtype)  # [P, nv, 3]
     # the second-order term's diagonal over the position rows: a rotation dof turns a point about its axis,
     # d2p/dq^2 = axis x (axis x (p - anchor)) = axis x column (zero for slides and for dofs that do not move it)
-    fe = np.asarray(feet)
-    pull = (sp**2 * (points - fr.p)).at[fe].add(spl**2 * (points[fe] - fr.anchor_p))  # [K, 3]: sum of r dr/dp
-    curvature = (einsum("kc,kdc->d", pull, jnp.cross(jacr, jacp))
+    curvature = (einsum("kc,kdc->d", sp**2 * (points - fr.p), jnp.cross(jacr, jacp))
                  + einsum("p,pd->d", sg**2 * ground * slope, jnp.cross(jsr, jsp)[:, :, 2]))
     jacp, jacr = jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)  # [K, 3, nv]
     jz = jsp[:, :, 2]  # [P, nv]
-    Li = rot.left_jacobian_inverse(e_match)
-    Lp = rot.left_jacobian_inverse(e_plant)
-    Jo = sum(Li[:, :, c, None] * jacr[:, c, None, :] for c in range(3))
-    Jpl = sum(Lp[:, :, c, None] * jacr[np.asarray(feet)][:, c, None, :] for c in range(3))
-    J = jnp.concatenate([
-        (sp[:, :, None] * jacp).reshape(-1, robot.nv), (so[:, :, None] * Jo).reshape(-1, robot.nv),
-        (spl[:, :, None] * jacp[np.asarray(feet)]).reshape(-1, robot.nv), (spl[:, :, None] * Jpl).reshape(-1, robot.nv),
-        (sg * slope)[:, None] * jz])
+    Li = rot.left_jacobian_inverse(e_ori)
+    Jo = sum(Li[:, :, c, None] * jacr[oriented][:, c, None, :] for c in range(3))
+    J = jnp.concatenate([(sp[:, :, None] * jacp).reshape(-1, robot.nv), (so[:, :, None] * Jo).reshape(-1, robot.nv),
+                         (sg * slope)[:, None] * jz])
     return r, J, posture, (sg * height, sg[:, None] * jz, slope == 0), jnp.maximum(curvature, 0.0)
 
 
 def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
-    """The per-frame targets and weights ``[T, ...]``: a foot's matching is off while it is planted."""
+    """The per-frame targets and weights ``[T, ...]``: a planted foot's rows hold it at its anchor, flat."""
     mask = prob.mask.astype(dtype)
-    contacts = prob.contacts.astype(dtype) * mask[:, None]
-    planted = jnp.zeros((prob.num_frames, len(prob.names)), dtype).at[:, np.asarray(prob.feet)].set(contacts)
+    contacts = prob.contacts.astype(dtype) * mask[:, None]  # [T, F]
+    feet, oriented = np.asarray(prob.feet, np.int64), np.asarray(prob.oriented, np.int64)
+    planted = jnp.zeros((prob.num_frames, len(prob.names)), dtype).at[:, feet].set(contacts)  # [T, K]
     keep = mask[:, None] * (1.0 - planted)
+    plant = planted * opts.plant_weight.astype(dtype)
+    anchor_p = jnp.zeros((prob.num_frames, len(prob.names), 3), dtype).at[:, feet].set(
+        prob.anchor_positions().astype(dtype))
+    p = jnp.where(planted[..., None] > 0, anchor_p, prob.target_positions().astype(dtype))
+    R = rot.quat_to_matrix(prob.orientations.astype(dtype)[:, oriented])
+    identity = jnp.zeros((prob.num_frames, len(prob.names), 4), dtype).at[..., 0].set(1.0)
+    anchor_q = identity.at[:, feet].set(
+        prob.anchor_orientations.astype(dtype))[:, oriented]
+    R = jnp.where(planted[:, oriented, None, None] > 0, rot.quat_to_matrix(anchor_q), R)
+    wo = keep * prob.orientation_weight.astype(dtype)[None, :] + plant
     return _Frame(
-        p=prob.target_positions().astype(dtype), R=rot.quat_to_matrix(prob.orientations.astype(dtype)),
-        wp=keep * prob.position_weight.astype(dtype)[None, :], wo=keep * prob.orientation_weight.astype(dtype)[None, :],
-        anchor_p=prob.anchor_positions().astype(dtype), anchor_R=rot.quat_to_matrix(prob.anchor_orientations.astype(dtype)),
-        w_plant=contacts * opts.plant_weight.astype(dtype), w_ground=jnp.broadcast_to(mask[:, None], contacts.shape) * opts.ground_weight.astype(dtype),
+        p=p, R=R, wp=keep * prob.position_weight.astype(dtype)[None, :] + plant, wo=wo[:, oriented],
+        w_ground=jnp.broadcast_to(mask[:, None], contacts.shape) * opts.ground_weight.astype(dtype),
         w_posture=mask * opts.posture_weight.astype(dtype))
 
 
@@ -418,6 +417,20 @@ def _solve(robot: Robot, prob: RetargetProblem, opts: RetargetOptions):
     return q, cost, result, finite & converged, steps
 
 
+def _check_oriented(problem: RetargetProblem) -> None:
+    """A concrete problem whose orientation weight is not 0 on a target without orientation rows is refused (the
+    solve would ignore it); traced weights (under ``jit``, ``vmap`` or ``grad``) are not checked."""
+    w = problem.orientation_weight
+    if isinstance(w, jax.core.Tracer):
+        return
+    w = np.asarray(w).reshape(-1, len(problem.names))
+    bad = [name for k, name in enumerate(problem.names) if k not in problem.oriented and np.any(w[:, k] != 0)]
+    if bad:
+        raise JaxanimError(f"problem.orientation_weight: not 0 on {bad}, whose orientation weight was 0 when the "
+                           "problem was prepared, so the solve has no orientation rows for them; prepare the problem "
+                           "again with the map's new weights")
+
+
 def solve_retarget(robot: Robot, problem: RetargetProblem, options: RetargetOptions | None = None) -> RetargetResult:
     """Solve one prepared clip (:func:`~jaxanim.robots.prepare_retarget`); batch clips with ``jax.vmap``
     over :func:`~jaxanim.robots.stack_problems` (``in_axes=(None, 0, None)``). Jit-compiled once per
@@ -425,6 +438,7 @@ def solve_retarget(robot: Robot, problem: RetargetProblem, options: RetargetOpti
     options' weights.
     """
     options = RetargetOptions() if options is None else options
+    _check_oriented(problem)
     q, cost, result, success, steps = _solve(robot, problem, options)
     fps = 1.0 / problem.frame_time
     return RetargetResult(qpos=q, fps=fps, result=result, success=success, cost=cost,
