@@ -97,10 +97,24 @@ def _triangular_inverse(L, base: int = 17):
     return jnp.concatenate([top, jnp.concatenate([X, C], axis=-1)], axis=-2)
 
 
-def _spd_inverse(S):
-    """``S^{-1}`` of symmetric positive definite ``S`` (its lower triangle read): ``L^{-T} L^{-1}``."""
-    Li = _triangular_inverse(jax.lax.linalg.cholesky(S, symmetrize_input=False))
-    return einsum("ki,kj->ij", Li, Li)
+def _spd_inverse(S, base: int = 18):
+    """``S^{-1}`` of symmetric positive definite ``S``. Above ``base`` by its halves:
+    ``G = S_00^{-1}``, ``M = G S_01``, the Schur complement's inverse ``Q_11 = (S_11 - S_10 M)^{-1}``,
+    ``Q_01 = -M Q_11``, ``Q_00 = G - Q_01 M'``; at ``base`` and below ``L^{-T} L^{-1}`` of the Cholesky factor
+    ``L``. On XLA:CPU the halves' products run faster than the factorization and triangular inverse of the whole
+    (35 x 35, two at a time: 27.5 -> 22.5 us), and the result agrees to rounding."""
+    m = S.shape[-1]
+    if m <= base:
+        Li = _triangular_inverse(jax.lax.linalg.cholesky(S, symmetrize_input=False))
+        return einsum("...ki,...kj->...ij", Li, Li)
+    h = m // 2
+    G = _spd_inverse(S[..., :h, :h], base)
+    M = matmul(G, S[..., :h, h:])
+    Q11 = _spd_inverse(S[..., h:, h:] - matmul(jnp.swapaxes(S[..., :h, h:], -1, -2), M), base)
+    Q01 = -matmul(M, Q11)
+    Q00 = G - matmul(Q01, jnp.swapaxes(M, -1, -2))
+    return jnp.concatenate([jnp.concatenate([Q00, Q01], axis=-1),
+                            jnp.concatenate([jnp.swapaxes(Q01, -1, -2), Q11], axis=-1)], axis=-2)
 
 
 def block_pentadiagonal_solve(
