@@ -375,17 +375,21 @@ KERNELS: tuple[Kernel, ...] = (
     Kernel("retarget onto the G1 (per frame)", "float64", 32, "retarget: ≥ 5x mink's frames per second on 32 clips",
            _retarget,
            "Each Levenberg-Marquardt iteration linearizes every frame (the robot's kinematics, the Jacobians of the "
-           "targets and foot points, a dense J'J per frame: the `mi,mj->ij` product) and then runs the banded "
-           "solve, a scan over pairs of frames, sequential in time, whose every step inverts a block of twice the "
-           "robot's dofs for each clip by its halves (two Cholesky factorizations and triangular inverses of the "
-           "dofs' size, looped over the batch, and the small `ki,kj->ij` products), at a fraction of the CPU's "
-           "peak because the blocks are small; the solve costs somewhat more than the linearization. Under `vmap` "
-           "the clips run in chunks of `RETARGET_LANES` (`jaxanim/robots/_retarget_solve.py`), each chunk until all "
-           "of its clips have converged; the iterations are few and alike across clips since the normal equations "
-           "carry the positive second-order diagonal (no rejected steps on these clips). mink does per frame a few "
-           "QPs of the dofs' size in C; the whole-clip solve does more arithmetic per frame for what the per-frame "
-           "solve cannot give (planted feet, smoothness over the clip), so on two cores it trails the issue's "
-           "target."),
+           "targets and foot points, a dense J'J per frame: the `mi,mj->ij` product, over the rows that can carry "
+           "weight: a foot's matching and planting rows are one set, and a target without an orientation weight has "
+           "no orientation rows) and then runs the banded solve, a scan over pairs of frames, sequential in time, "
+           "whose every step inverts a block of twice the robot's dofs for each clip by halves, and those halves by "
+           "halves again (Cholesky factorizations and triangular inverses only at the smallest blocks, looped over "
+           "the batch, and small products), at a fraction of the CPU's peak because the blocks are small; the solve "
+           "costs somewhat more than the linearization. Under `vmap` the clips run in chunks of `RETARGET_LANES` "
+           "(`jaxanim/robots/_retarget_solve.py`), each chunk until all of its clips have converged; the iterations "
+           "are few and alike across clips since the normal equations carry the positive second-order diagonal (no "
+           "rejected steps on these clips). The last iterations of a clip converge linearly along its arms' wrist "
+           "pitch and elbow, which its matched points barely determine; exact Newton steps there were tried and were "
+           "indefinite at their first use, and steps that ignore the coupling between frames, or reuse an earlier "
+           "factorization, took more iterations than they saved. mink does per frame a few QPs of the dofs' size in "
+           "C; the whole-clip solve does more arithmetic per frame for what the per-frame solve cannot give (planted "
+           "feet, smoothness over the clip), so on two cores it trails the issue's target."),
     Kernel("iLQR unicycle, T = 200", "float64", 1, "oc: one unicycle solve ≤ 1.5x Crocoddyl", _unicycle,
            "Per iteration three scans over 200 knots (backward pass, adjoint gradient, line-search rollout), each "
            "knot tens of XLA instructions on 2- and 3-vectors: a call runs tens of thousands of instructions of "

@@ -195,8 +195,8 @@ def _profile(robot, problems, opts) -> str:
     T, n = problems[0].num_frames, robot.nv
     return (f"Where an iteration's time goes (float64, {len(problems)} clips of {T} frames, each phase jitted alone, "
             f"best of 3): linearizing every frame (kinematics, Jacobians, J'J) {1e3 * times[0]:.0f} ms, the banded "
-            f"solve ({(T + 1) // 2} sequential steps per clip, each a Cholesky factorization and triangular inverse "
-            f"of {2 * n} x {2 * n}) {1e3 * times[1]:.0f} ms; a solve takes the iterations the rows' notes give.")
+            f"solve ({(T + 1) // 2} sequential steps per clip, each the inverse of a {2 * n} x {2 * n} block from its "
+            f"halves) {1e3 * times[1]:.0f} ms; a solve takes the iterations the rows' notes give.")
 
 
 def _versus_mink(measured) -> list[str]:
