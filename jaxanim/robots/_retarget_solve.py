@@ -200,14 +200,12 @@ def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
     planted = jnp.zeros((prob.num_frames, len(prob.names)), dtype).at[:, feet].set(contacts)  # [T, K]
     keep = mask[:, None] * (1.0 - planted)
     plant = planted * opts.plant_weight.astype(dtype)
-    anchor_p = jnp.zeros((prob.num_frames, len(prob.names), 3), dtype).at[:, feet].set(
-        prob.anchor_positions().astype(dtype))
+    foot_of = {k: f for f, k in enumerate(prob.feet)}  # a foot target's column among the feet
+    anchor_p = prob.anchor_positions().astype(dtype)[:, np.asarray([foot_of.get(k, 0) for k in range(len(prob.names))])]
     p = jnp.where(planted[..., None] > 0, anchor_p, prob.target_positions().astype(dtype))
-    R = rot.quat_to_matrix(prob.orientations.astype(dtype)[:, oriented])
-    identity = jnp.zeros((prob.num_frames, len(prob.names), 4), dtype).at[..., 0].set(1.0)
-    anchor_q = identity.at[:, feet].set(
-        prob.anchor_orientations.astype(dtype))[:, oriented]
-    R = jnp.where(planted[:, oriented, None, None] > 0, rot.quat_to_matrix(anchor_q), R)
+    anchor_q = prob.anchor_orientations.astype(dtype)[:, np.asarray([foot_of.get(k, 0) for k in oriented], np.int64)]
+    R = jnp.where(planted[:, oriented, None, None] > 0, rot.quat_to_matrix(anchor_q),
+                  rot.quat_to_matrix(prob.orientations.astype(dtype)[:, oriented]))
     wo = keep * prob.orientation_weight.astype(dtype)[None, :] + plant
     return _Frame(
         p=p, R=R, wp=keep * prob.position_weight.astype(dtype)[None, :] + plant, wo=wo[:, oriented],
