@@ -214,3 +214,62 @@ def test_tree_solve_satisfies_its_system_and_its_jvp_is_the_implicit_one(scan_le
     np.testing.assert_allclose(force, 0.0, atol=1e-10)
     np.testing.assert_array_equal(v1, V)
     np.testing.assert_allclose(t1, t2, rtol=1e-10, atol=1e-12)
+
+
+def test_rows_solve_jvp_equals_autodiff_through_every_step():
+    """The joint and one-sided rows solved together (contacts with friction and two limit rows, one of them on a
+    parent too): the custom JVP (adjoint products for the Delassus matrix's tangent, one substitution for the
+    velocities') equals forward-mode autodiff through the tree solve's elimination, the columns and the
+    Gauss-Seidel sweeps, along random tangents of every input (the inertias' symmetric, as the rule takes them);
+    and the same under ``jax.jacfwd`` in every other input."""
+    from jaxanim.physics import _rows_solve as R
+    from jaxanim.physics import _tree_solve as T
+    from jaxanim.physics._contact import projected_gauss_seidel
+
+    rng = np.random.default_rng(5)
+    parent, child, B, k = (-1, 0, 0), (0, 1, 2), 4, 3
+    plan = T._plan(parent, child, B)
+    nj, K, L = len(parent), 3, 2
+    U = 3 * K + L
+
+    def spd(scale):
+        a = rng.normal(size=(B, 6, 6))
+        return scale * (a @ np.swapaxes(a, -1, -2) + 6 * np.eye(6))
+
+    owner_a = np.array([0, 0, 0, 1, 1, 1, 3, 3, 3, 2, 1])
+    owner_b = np.array([0, 0])
+    x = [spd(1.0), rng.normal(size=(B, 6)), rng.normal(size=(nj, k, 6)), rng.normal(size=(nj, k, 6)),
+         rng.normal(size=(nj, k)), 1e-3 * np.abs(rng.normal(size=(nj, k))), rng.normal(size=(U, 6)),
+         rng.normal(size=(U,)) + np.r_[np.ones(9), 0, 0], rng.normal(size=(L, 6)), np.array(0.6), np.array(1e-6)]
+    t = [spd(0.1), *(rng.normal(size=np.shape(a)) for a in x[1:])]
+    x, t = tuple(map(jnp.asarray, x)), tuple(map(jnp.asarray, t))
+
+    def rule(M, p, Jp, Jc, b, C, rows_a, target, rows_b, mu, cfm):
+        return R._solve(plan, False, 10, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b, mu, cfm)
+
+    def impulses(M, p, Jp, Jc, b, C, rows_a, target, rows_b, mu, cfm):
+        _, V0, _, Y, _, A, rhs = R._columns(plan, False, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b,
+                                            rows_b, cfm)
+        return V0, Y, projected_gauss_seidel(A, rhs, mu, 10, num_single=L)
+
+    def autodiff(*a):
+        V0, Y, lam = impulses(*a)
+        return V0 + jnp.einsum("bjv,v->bj", Y, lam)
+
+    args = tuple(range(1, len(x)))
+
+    @jax.jit
+    def run(x, t):
+        (v1, d1), (v2, d2) = jax.jvp(rule, x, t), jax.jvp(autodiff, x, t)
+        return v1, d1, v2, d2, jax.jacfwd(rule, argnums=args)(*x), jax.jacfwd(autodiff, argnums=args)(*x)
+
+    v1, d1, v2, d2, j1, j2 = run(x, t)
+    lam = np.asarray(jax.jit(impulses)(*x)[2])
+    # the premise: points 0 and 2 pressed and sliding (on the friction disc's edge), point 1 apart, both limits on
+    assert lam[0] > 1 and lam[6] > 1 and np.all(lam[3:6] == 0) and np.all(lam[-2:] > 1)
+    np.testing.assert_allclose(np.hypot(lam[1], lam[2]), 0.6 * lam[0], rtol=1e-12)
+    np.testing.assert_array_equal(v1, v2)
+    assert np.abs(np.asarray(d2)).max() > 1e-2
+    np.testing.assert_allclose(d1, d2, rtol=1e-9, atol=1e-9 * float(np.abs(d2).max()))
+    for a, b in zip(j1, j2):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * float(np.abs(b).max()))

@@ -20,11 +20,12 @@ import solvers
 from .. import rotations as rot
 from .._errors import JaxanimError
 from ._bodies import BodyState, _check_loads, _free_velocities, _integrate
-from ._contact import contact_rows, penalty_loads, projected_gauss_seidel
+from ._contact import contact_rows, penalty_loads
 from ._control import Control, Servo, StablePD, _as_control
 from ._joints import joint_errors, joint_rows, limit_rows
 from ._model import PhysicsModel
-from ._tree_solve import _plan, _tree_solve
+from ._rows_solve import solve_rows
+from ._tree_solve import _plan
 from .._linalg import einsum
 
 __all__ = ["spd_torques", "step"]
@@ -174,36 +175,10 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd:
     if spd is not None and Jn and spd.torque_limit is not None:
         V, tau = _limit_torques(model, plan, one_sided, M, p, Jp, Jc, b, C, spd.torque_limit, h)
         return _split(V) + (tau,)
-    V = _solve_rows(model, plan, one_sided, M, p, Jp, Jc, b, C)
+    V = solve_rows(model, plan, one_sided, M, p, Jp, Jc, b, C)
     if spd is None or not Jn:
         return _split(V) + (None,)
     return _split(V) + (_spd_torques(model, Jp, Jc, b, C, V, h),)
-
-
-def _solve_rows(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C):
-    """``V [bodies, 6]``: the tree solve of the joint rows, then the one-sided rows by projected
-    Gauss-Seidel on their Delassus matrix (see :func:`_solve_constraints`)."""
-    dtype = M.dtype
-    B = M.shape[0]
-    if one_sided is None:
-        return _tree_solve(plan, M, p[..., None], Jp, Jc, b[..., None], C, model.scan_levels)[..., 0]
-    owner_a, rows_a, target, L, owner_b, rows_b = one_sided
-    U = target.shape[0]
-    cols = jnp.zeros((B, 6, U), dtype).at[owner_a, :, np.arange(U)].add(rows_a)  # J_u'
-    if L:
-        cols = cols.at[owner_b, :, np.arange(U - L, U)].add(rows_b)
-    P = jnp.concatenate([p[..., None], cols], axis=-1)
-    bb = jnp.concatenate([b[..., None], jnp.zeros(b.shape + (U,), dtype)], axis=-1)
-    Vall = _tree_solve(plan, M, P, Jp, Jc, bb, C, model.scan_levels)
-    V0, Y = Vall[..., 0], Vall[..., 1:]  # Y = H^{-1} J_u'  [bodies, 6, U]
-    A = einsum("uj,ujv->uv", rows_a, Y[owner_a])
-    rhs = target - einsum("uj,uj->u", rows_a, V0[owner_a])
-    if L:
-        A = A.at[U - L:].add(einsum("uj,ujv->uv", rows_b, Y[owner_b]))
-        rhs = rhs.at[U - L:].add(-einsum("uj,uj->u", rows_b, V0[owner_b]))
-    A = 0.5 * (A + A.T) + model.cfm * jnp.eye(U, dtype=dtype)
-    lam = projected_gauss_seidel(A, rhs, model.ground.friction, model.ground.iterations, num_single=L)
-    return V0 + einsum("bjv,v->bj", Y, lam)
 
 
 def _spd_torques(model: PhysicsModel, Jp, Jc, b, C, V, h):
@@ -250,7 +225,7 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
         q = p.at[chi, 3:].add(h * fixed)
         if np.any(has_parent):
             q = q.at[par[has_parent], 3:].add(-h * fixed[np.nonzero(has_parent)[0]])
-        V = _solve_rows(model, plan, one_sided, M, q, Jp, Jc, b, C)
+        V = solve_rows(model, plan, one_sided, M, q, Jp, Jc, b, C)
         return V, _spd_torques(model, Jp, Jc, b, C, V, h), saturated, fixed, Jp, Jc, b, C
 
     def needed(carry):  # a joint over its bound that the passes have not saturated yet

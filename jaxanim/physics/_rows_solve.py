@@ -1,0 +1,139 @@
+r"""The joint rows and the one-sided rows (contacts, joint limits) of one step, solved together, and their
+derivative.
+
+:func:`solve_rows` eliminates the joints exactly (:func:`~jaxanim.physics._tree_solve._tree_solve`, with the
+one-sided rows' columns ``Y = H^{-1} J_u'`` as extra right-hand sides), forms their Delassus matrix
+``A = J_u Y`` and solves the contact problem on it by projected Gauss-Seidel.
+
+Its derivative (:func:`_solve_rows_jvp`) needs no derivative of the ``U`` columns ``Y``. With ``S`` the joint
+system's solve (``K = [[M, -J_j'], [J_j, C]]``, so that ``K' = D K D`` with ``D = diag(I, -I)``), ``J_u S(z) =
+Y' z_p - Lambda_Y' z_b`` for any right-hand side ``z`` (``Lambda_Y`` the joints' multipliers of the columns),
+so the tangents of ``A`` and of the contact right-hand side are products of ``Y`` and ``Lambda_Y`` with the
+tangents of the rows and inertias (the adjoint form of ``d(J H^{-1} J') = dJ H^{-1} J' + J H^{-1} dJ' - J H^{-1}
+dH H^{-1} J'``); the impulses' tangent is the forward derivative of the Gauss-Seidel sweeps, and the velocities'
+is one substitution through the joint factors with one column, ``dV = S(dp - dM V + dJ_j' lambda_j + dJ_u'
+lambda_u, db - dJ_j V - dC lambda_j) + Y d lambda_u``. Under ``jacfwd`` (``tracking.linearize``: hundreds of
+tangents) the substitutions then carry one column per tangent instead of ``1 + U``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._linalg import einsum
+from ._bodies import _bmm
+from ._contact import projected_gauss_seidel
+from ._tree_solve import _add_rows, _factor, _substitute, _tree_solve
+
+__all__ = ["solve_rows"]
+
+
+def _rows_on(owner_a, rows_a, owner_b, rows_b, L, X):
+    """``J_u X [U, m]`` of ``X [bodies, 6, m]``: row ``u`` on body ``owner_a[u]`` (the last ``L`` also on
+    ``owner_b``)."""
+    out = einsum("uj,ujm->um", rows_a, X[owner_a])
+    if L:
+        U = out.shape[0]
+        out = out.at[U - L:].add(einsum("uj,ujm->um", rows_b, X[owner_b]))
+    return out
+
+
+def _rows_from(B, owner_a, rows_a, owner_b, rows_b, L, lam):
+    """``J_u' lam [bodies, 6, m]`` of ``lam [U, m]``."""
+    U, m = lam.shape
+    out = jnp.zeros((B, 6, m), lam.dtype).at[owner_a].add(rows_a[:, :, None] * lam[:, None, :])
+    if L:
+        out = out.at[owner_b].add(rows_b[:, :, None] * lam[U - L:, None, :])
+    return out
+
+
+def _joints_on(plan, Jp, Jc, X):
+    """``J_j X [joints, k, m]`` of ``X [bodies, 6, m]``."""
+    out = _bmm(Jc, X[plan.child])
+    jointed = np.flatnonzero(plan.parent >= 0)
+    if jointed.size:
+        out = _add_rows(out, jointed, _bmm(Jp[jointed], X[plan.parent[jointed]]))
+    return out
+
+
+def _joints_from(plan, Jp, Jc, lam, B):
+    """``J_j' lam [bodies, 6, m]`` of ``lam [joints, k, m]``."""
+    out = _add_rows(jnp.zeros((B, 6, lam.shape[-1]), lam.dtype), plan.child, _bmm(jnp.swapaxes(Jc, -1, -2), lam))
+    jointed = np.flatnonzero(plan.parent >= 0)
+    if jointed.size:
+        out = _add_rows(out, plan.parent[jointed], _bmm(jnp.swapaxes(Jp[jointed], -1, -2), lam[jointed]))
+    return out
+
+
+def _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b, cfm):
+    """The joint factors, ``(V0, lam0)`` of ``(p, b)``, ``(Y, Lambda_Y)`` of the columns ``J_u'``, and the
+    contact problem ``(A, rhs)``."""
+    B, U = M.shape[0], target.shape[0]
+    cols = _rows_from(B, owner_a, rows_a, owner_b, rows_b, L, jnp.eye(U, dtype=M.dtype))
+    P = jnp.concatenate([p[..., None], cols], axis=-1)
+    bb = jnp.concatenate([b[..., None], jnp.zeros(b.shape + (U,), b.dtype)], axis=-1)
+    factors = _factor(plan, M, Jp, Jc, C, scan_levels)
+    Vall, lam_all = _substitute(plan, factors, P, Jp, Jc, bb, scan_levels)
+    V0, Y, lam0, LY = Vall[..., 0], Vall[..., 1:], lam_all[..., 0], lam_all[..., 1:]
+    A = _rows_on(owner_a, rows_a, owner_b, rows_b, L, Y)
+    rhs = target - _rows_on(owner_a, rows_a, owner_b, rows_b, L, V0[..., None])[:, 0]
+    A = 0.5 * (A + A.T) + cfm * jnp.eye(U, dtype=A.dtype)
+    return factors, V0, lam0, Y, LY, A, rhs
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3))
+def _solve(plan, scan_levels, iterations, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b,
+           friction, cfm):
+    _, V0, _, Y, _, A, rhs = _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b,
+                                      rows_b, cfm)
+    lam = projected_gauss_seidel(A, rhs, friction, iterations, num_single=L)
+    return V0 + einsum("bjv,v->bj", Y, lam)
+
+
+@_solve.defjvp
+def _solve_rows_jvp(plan, scan_levels, iterations, L, primals, tangents):
+    M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b, friction, cfm = primals
+    dM, dp, dJp, dJc, db, dC, _, drows_a, dtarget, _, drows_b, dfriction, dcfm = tangents
+    B, U = M.shape[0], target.shape[0]
+    factors, V0, lam0, Y, LY, A, rhs = _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target,
+                                                owner_b, rows_b, cfm)
+
+    def through(zp, zb):  # J_u S(z) = Y' z_p - Lambda_Y' z_b
+        return einsum("biu,bim->um", Y, zp) - einsum("jku,jkm->um", LY, zb)
+
+    # the Delassus matrix's tangent: dJ_u Y + Y' dJ_u' + J_u dS J_u', dS x = S(-dK S x)
+    G = _rows_on(owner_a, drows_a, owner_b, drows_b, L, Y)
+    X = einsum("jku,jkv->uv", LY, _joints_on(plan, dJp, dJc, Y))
+    dA = (G + G.T + X + X.T - einsum("biu,bij,bjv->uv", Y, dM, Y) + einsum("jku,jk,jkv->uv", LY, dC, LY)
+          + dcfm * jnp.eye(U, dtype=A.dtype))
+    # the right-hand side's: -dJ_u V0 - J_u S(dp - dM V0 + dJ_j' lam0, db - dJ_j V0 - dC lam0)
+    z0p = dp[..., None] - _bmm(dM, V0[..., None]) + _joints_from(plan, dJp, dJc, lam0[..., None], B)
+    z0b = db[..., None] - _joints_on(plan, dJp, dJc, V0[..., None]) - (dC * lam0)[..., None]
+    drhs = (dtarget - _rows_on(owner_a, drows_a, owner_b, drows_b, L, V0[..., None])[:, 0]
+            - through(z0p, z0b)[:, 0])
+    lam, dlam = jax.jvp(lambda A, r, mu: projected_gauss_seidel(A, r, mu, iterations, num_single=L),
+                        (A, rhs, friction), (dA, drhs, dfriction))
+    V = V0 + einsum("bjv,v->bj", Y, lam)
+    lam_j = lam0 + einsum("jkv,v->jk", LY, lam)
+    zp = (dp[..., None] - _bmm(dM, V[..., None]) + _joints_from(plan, dJp, dJc, lam_j[..., None], B)
+          + _rows_from(B, owner_a, drows_a, owner_b, drows_b, L, lam[:, None]))
+    zb = db[..., None] - _joints_on(plan, dJp, dJc, V[..., None]) - (dC * lam_j)[..., None]
+    dV = _substitute(plan, factors, zp, Jp, Jc, zb, scan_levels)[0][..., 0]
+    return V, dV + einsum("bjv,v->bj", Y, dlam)
+
+
+def solve_rows(model, plan, one_sided, M, p, Jp, Jc, b, C):
+    """``V [bodies, 6]``: the tree solve of the joint rows, then the one-sided rows by projected
+    Gauss-Seidel on their Delassus matrix (module docstring; :func:`~jaxanim.physics._step._solve_constraints`)."""
+    if one_sided is None:
+        return _tree_solve(plan, M, p[..., None], Jp, Jc, b[..., None], C, model.scan_levels)[..., 0]
+    owner_a, rows_a, target, L, owner_b, rows_b = one_sided
+    dtype = M.dtype
+    cfm = jnp.asarray(model.cfm, dtype)
+    friction = jnp.asarray(model.ground.friction, dtype)
+    return _solve(plan, model.scan_levels, model.ground.iterations, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target,
+                  owner_b, rows_b, friction, cfm)
