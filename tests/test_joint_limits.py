@@ -218,58 +218,72 @@ def test_tree_solve_satisfies_its_system_and_its_jvp_is_the_implicit_one(scan_le
 
 def test_rows_solve_jvp_equals_autodiff_through_every_step():
     """The joint and one-sided rows solved together (contacts with friction and two limit rows, one of them on a
-    parent too): the custom JVP (adjoint products for the Delassus matrix's tangent, one substitution for the
+    parent too, both pushing; a point sticking, one sliding, one apart): the custom JVP (adjoint products for the Delassus matrix's tangent, one substitution for the
     velocities') equals forward-mode autodiff through the tree solve's elimination, the columns and the
-    Gauss-Seidel sweeps, along random tangents of every input (the inertias' symmetric, as the rule takes them);
-    and the same under ``jax.jacfwd`` in every other input."""
+    Gauss-Seidel sweeps, along random tangents of every input (the inertias' symmetric, as the rule takes them),
+    with the linear inertias and the drive rows held constant (symbolic zero tangents, skipped by the rule) or
+    not; and the same under ``jax.jacfwd`` in the other inputs."""
     from jaxanim.physics import _rows_solve as R
     from jaxanim.physics import _tree_solve as T
     from jaxanim.physics._contact import projected_gauss_seidel
 
     rng = np.random.default_rng(5)
-    parent, child, B, k = (-1, 0, 0), (0, 1, 2), 4, 3
+    parent, child, B = (-1, 0, 0), (0, 1, 2), 4
     plan = T._plan(parent, child, B)
     nj, K, L = len(parent), 3, 2
     U = 3 * K + L
 
     def spd(scale):
-        a = rng.normal(size=(B, 6, 6))
-        return scale * (a @ np.swapaxes(a, -1, -2) + 6 * np.eye(6))
+        a = rng.normal(size=(B, 3, 3))
+        return scale * (a @ np.swapaxes(a, -1, -2) + 3 * np.eye(3))
 
     owner_a = np.array([0, 0, 0, 1, 1, 1, 3, 3, 3, 2, 1])
     owner_b = np.array([0, 0])
-    x = [spd(1.0), rng.normal(size=(B, 6)), rng.normal(size=(nj, k, 6)), rng.normal(size=(nj, k, 6)),
-         rng.normal(size=(nj, k)), 1e-3 * np.abs(rng.normal(size=(nj, k))), rng.normal(size=(U, 6)),
-         rng.normal(size=(U,)) + np.r_[np.ones(9), 0, 0], rng.normal(size=(L, 6)), np.array(0.6), np.array(1e-6)]
-    t = [spd(0.1), *(rng.normal(size=np.shape(a)) for a in x[1:])]
+    shapes = [(nj, 2, 6), (nj, 1, 6), (nj, 2, 6), (nj, 1, 6), (nj, 3), (nj, 3), (U, 6), (U,), (L, 6)]
+    x = [spd(1.0), spd(1.0), rng.normal(size=(B, 6)), *(rng.normal(size=s) for s in shapes), np.array(0.6),
+         np.array(1e-6)]
+    x[8] = 1e-3 * np.abs(x[8])  # C
+    x[10] = x[10] + np.r_[np.ones(9), 10, 10]  # target
+    t = [spd(0.1), spd(0.1), *(rng.normal(size=np.shape(a)) for a in x[2:])]
     x, t = tuple(map(jnp.asarray, x)), tuple(map(jnp.asarray, t))
 
-    def rule(M, p, Jp, Jc, b, C, rows_a, target, rows_b, mu, cfm):
-        return R._solve(plan, False, 10, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b, mu, cfm)
+    def rule(Mt, Mr, p, Jpg, Jpd, Jcg, Jcd, b, C, rows_a, target, rows_b, mu, cfm):
+        return R._solve(plan, False, 10, L, (Mt, Mr), p, (Jpg, Jpd), (Jcg, Jcd), b, C, owner_a, rows_a, target,
+                        owner_b, rows_b, mu, cfm)
 
-    def impulses(M, p, Jp, Jc, b, C, rows_a, target, rows_b, mu, cfm):
-        _, V0, _, Y, _, A, rhs = R._columns(plan, False, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b,
-                                            rows_b, cfm)
+    def impulses(Mt, Mr, p, Jpg, Jpd, Jcg, Jcd, b, C, rows_a, target, rows_b, mu, cfm):
+        _, V0, _, Y, _, A, rhs = R._columns(plan, False, L, (Mt, Mr), p, (Jpg, Jpd), (Jcg, Jcd), b, C, owner_a,
+                                            rows_a, target, owner_b, rows_b, cfm)
         return V0, Y, projected_gauss_seidel(A, rhs, mu, 10, num_single=L)
 
     def autodiff(*a):
         V0, Y, lam = impulses(*a)
         return V0 + jnp.einsum("bjv,v->bj", Y, lam)
 
-    args = tuple(range(1, len(x)))
+    held = (0, 4, 6)  # M_lin and the drive rows: constants of the function differentiated
+
+    def part(f):
+        return lambda *a: f(*(x[i] if i in held else a[i] for i in range(len(x))))
+
+    args = tuple(i for i in range(2, len(x)) if i not in held)
 
     @jax.jit
     def run(x, t):
-        (v1, d1), (v2, d2) = jax.jvp(rule, x, t), jax.jvp(autodiff, x, t)
-        return v1, d1, v2, d2, jax.jacfwd(rule, argnums=args)(*x), jax.jacfwd(autodiff, argnums=args)(*x)
+        out = [jax.jvp(f, x, t) for f in (rule, autodiff, part(rule), part(autodiff))]
+        return out, [jax.jacfwd(f, argnums=args)(*x) for f in (part(rule), part(autodiff))]
 
-    v1, d1, v2, d2, j1, j2 = run(x, t)
+    ((v1, d1), (v2, d2), (v3, d3), (v4, d4)), (j1, j2) = run(x, t)
     lam = np.asarray(jax.jit(impulses)(*x)[2])
-    # the premise: points 0 and 2 pressed and sliding (on the friction disc's edge), point 1 apart, both limits on
-    assert lam[0] > 1 and lam[6] > 1 and np.all(lam[3:6] == 0) and np.all(lam[-2:] > 1)
-    np.testing.assert_allclose(np.hypot(lam[1], lam[2]), 0.6 * lam[0], rtol=1e-12)
+    # the premise: point 0 pressed and sticking (inside the friction disc), point 1 pressed and sliding (on its
+    # edge), point 2 apart, both limit rows pushing
+    assert lam[0] > 1 and lam[3] > 1 and np.all(lam[6:9] == 0) and np.all(lam[-2:] > 1)
+    assert np.hypot(lam[1], lam[2]) < 0.5 * lam[0]
+    np.testing.assert_allclose(np.hypot(lam[4], lam[5]), 0.6 * lam[3], rtol=1e-12)
     np.testing.assert_array_equal(v1, v2)
-    assert np.abs(np.asarray(d2)).max() > 1e-2
-    np.testing.assert_allclose(d1, d2, rtol=1e-9, atol=1e-9 * float(np.abs(d2).max()))
+    np.testing.assert_array_equal(v3, v1)
+    for a, b in ((d1, d2), (d3, d4)):
+        assert np.abs(np.asarray(b)).max() > 1e-2
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * float(np.abs(b).max()))
+    assert np.abs(np.asarray(d3 - d1)).max() > 1e-3  # the held parts' tangents mattered
     for a, b in zip(j1, j2):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * float(np.abs(b).max()))

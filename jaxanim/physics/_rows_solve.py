@@ -24,6 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jax.custom_derivatives import SymbolicZero
+
 from .._linalg import einsum
 from ._bodies import _bmm
 from ._contact import projected_gauss_seidel
@@ -69,9 +71,19 @@ def _joints_from(plan, Jp, Jc, lam, B):
     return out
 
 
+def _assembled(M, Jp, Jc):
+    """The inertias ``M = (M_lin, M_ang)`` (``[bodies, 3, 3]`` each) as ``[bodies, 6, 6]`` blocks and the joint
+    rows ``J = (geometric, drive)`` (``[joints, k_g, 6]``, ``[joints, k_d, 6]``) stacked ``[joints, k, 6]``."""
+    Mt, Mr = M
+    z = jnp.zeros_like(Mt)
+    M6 = jnp.concatenate([jnp.concatenate([Mt, z], -1), jnp.concatenate([z, Mr], -1)], 1)
+    return M6, jnp.concatenate(Jp, axis=1), jnp.concatenate(Jc, axis=1)
+
+
 def _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b, cfm):
     """The joint factors, ``(V0, lam0)`` of ``(p, b)``, ``(Y, Lambda_Y)`` of the columns ``J_u'``, and the
-    contact problem ``(A, rhs)``."""
+    contact problem ``(A, rhs)`` (``M``, ``Jp``, ``Jc`` in parts: :func:`_assembled`)."""
+    M, Jp, Jc = _assembled(M, Jp, Jc)
     B, U = M.shape[0], target.shape[0]
     cols = _rows_from(B, owner_a, rows_a, owner_b, rows_b, L, jnp.eye(U, dtype=M.dtype))
     P = jnp.concatenate([p[..., None], cols], axis=-1)
@@ -82,7 +94,7 @@ def _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, 
     A = _rows_on(owner_a, rows_a, owner_b, rows_b, L, Y)
     rhs = target - _rows_on(owner_a, rows_a, owner_b, rows_b, L, V0[..., None])[:, 0]
     A = 0.5 * (A + A.T) + cfm * jnp.eye(U, dtype=A.dtype)
-    return factors, V0, lam0, Y, LY, A, rhs
+    return (factors, Jp, Jc), V0, lam0, Y, LY, A, rhs
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3))
@@ -94,45 +106,103 @@ def _solve(plan, scan_levels, iterations, L, M, p, Jp, Jc, b, C, owner_a, rows_a
     return V0 + einsum("bjv,v->bj", Y, lam)
 
 
-@_solve.defjvp
+def _zero(t) -> bool:
+    return isinstance(t, SymbolicZero)
+
+
+def _dense(t, like):
+    return jnp.zeros(like.shape, like.dtype) if _zero(t) else t
+
+
+def _inertia_on(dM, X):
+    """``dM X [bodies, 6, m]`` for the inertias' tangent in parts (a part that is a symbolic zero costs nothing)."""
+    parts = [jnp.zeros(X[:, :3].shape, X.dtype) if _zero(d) else _bmm(d, X[:, 3 * i:3 * i + 3])
+             for i, d in enumerate(dM)]
+    return jnp.concatenate(parts, axis=1)
+
+
+def _parts(Jp, Jc, dJp, dJc):
+    """The row slices of the joint rows' parts, with their tangents (``None`` for a part whose tangents are both
+    symbolic zeros)."""
+    out, start = [], 0
+    for jp, jc, dp_, dc_ in zip(Jp, Jc, dJp, dJc):
+        k = jp.shape[1]
+        tangent = None if _zero(dp_) and _zero(dc_) else (_dense(dp_, jp), _dense(dc_, jc))
+        out.append((slice(start, start + k), tangent))
+        start += k
+    return out
+
+
+def _joint_rows_on(plan, parts, X):
+    """``dJ_j X [joints, k, m]``."""
+    rows = [jnp.zeros((len(plan.child), sl.stop - sl.start) + X.shape[2:], X.dtype) if t is None
+            else _joints_on(plan, *t, X) for sl, t in parts]
+    return jnp.concatenate(rows, axis=1)
+
+
+def _joint_rows_from(plan, parts, lam, B):
+    """``dJ_j' lam [bodies, 6, m]``."""
+    out = jnp.zeros((B, 6, lam.shape[-1]), lam.dtype)
+    for sl, t in parts:
+        if t is not None:
+            out = out + _joints_from(plan, *t, lam[:, sl], B)
+    return out
+
+
+@functools.partial(_solve.defjvp, symbolic_zeros=True)
 def _solve_rows_jvp(plan, scan_levels, iterations, L, primals, tangents):
     M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b, friction, cfm = primals
     dM, dp, dJp, dJc, db, dC, _, drows_a, dtarget, _, drows_b, dfriction, dcfm = tangents
-    B, U = M.shape[0], target.shape[0]
-    factors, V0, lam0, Y, LY, A, rhs = _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target,
-                                                owner_b, rows_b, cfm)
+    dp, db, dC, drows_a, dtarget, dfriction, dcfm = (_dense(t, x) for t, x in zip(
+        (dp, db, dC, drows_a, dtarget, dfriction, dcfm), (p, b, C, rows_a, target, friction, cfm)))
+    drows_b = None if rows_b is None else _dense(drows_b, rows_b)
+    B, U = p.shape[0], target.shape[0]
+    (factors, Jp6, Jc6), V0, lam0, Y, LY, A, rhs = _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a,
+                                                           rows_a, target, owner_b, rows_b, cfm)
+    parts = _parts(Jp, Jc, dJp, dJc)
 
     def through(zp, zb):  # J_u S(z) = Y' z_p - Lambda_Y' z_b
         return einsum("biu,bim->um", Y, zp) - einsum("jku,jkm->um", LY, zb)
 
-    # the Delassus matrix's tangent: dJ_u Y + Y' dJ_u' + J_u dS J_u', dS x = S(-dK S x)
+    # the Delassus matrix's tangent: dJ_u Y + Y' dJ_u' + J_u dS J_u', dS x = S(-dK S x); the parts of the
+    # inertias and joint rows whose tangents are symbolic zeros (the bodies' masses, the stable-PD rows) skipped
     G = _rows_on(owner_a, drows_a, owner_b, drows_b, L, Y)
-    X = einsum("jku,jkv->uv", LY, _joints_on(plan, dJp, dJc, Y))
-    dA = (G + G.T + X + X.T - einsum("biu,bij,bjv->uv", Y, dM, Y) + einsum("jku,jk,jkv->uv", LY, dC, LY)
-          + dcfm * jnp.eye(U, dtype=A.dtype))
+    dA = G + G.T + einsum("jku,jk,jkv->uv", LY, dC, LY) + dcfm * jnp.eye(U, dtype=A.dtype)
+    for sl, t in parts:
+        if t is not None:
+            X = einsum("jku,jkv->uv", LY[:, sl], _joints_on(plan, *t, Y))
+            dA = dA + X + X.T
+    for i, d in enumerate(dM):
+        if not _zero(d):
+            Yi = Y[:, 3 * i:3 * i + 3]
+            dA = dA - einsum("biu,bij,bjv->uv", Yi, d, Yi)
     # the right-hand side's: -dJ_u V0 - J_u S(dp - dM V0 + dJ_j' lam0, db - dJ_j V0 - dC lam0)
-    z0p = dp[..., None] - _bmm(dM, V0[..., None]) + _joints_from(plan, dJp, dJc, lam0[..., None], B)
-    z0b = db[..., None] - _joints_on(plan, dJp, dJc, V0[..., None]) - (dC * lam0)[..., None]
+    z0p = dp[..., None] - _inertia_on(dM, V0[..., None]) + _joint_rows_from(plan, parts, lam0[..., None], B)
+    z0b = db[..., None] - _joint_rows_on(plan, parts, V0[..., None]) - (dC * lam0)[..., None]
     drhs = (dtarget - _rows_on(owner_a, drows_a, owner_b, drows_b, L, V0[..., None])[:, 0]
             - through(z0p, z0b)[:, 0])
     lam, dlam = jax.jvp(lambda A, r, mu: projected_gauss_seidel(A, r, mu, iterations, num_single=L),
                         (A, rhs, friction), (dA, drhs, dfriction))
     V = V0 + einsum("bjv,v->bj", Y, lam)
     lam_j = lam0 + einsum("jkv,v->jk", LY, lam)
-    zp = (dp[..., None] - _bmm(dM, V[..., None]) + _joints_from(plan, dJp, dJc, lam_j[..., None], B)
+    zp = (dp[..., None] - _inertia_on(dM, V[..., None]) + _joint_rows_from(plan, parts, lam_j[..., None], B)
           + _rows_from(B, owner_a, drows_a, owner_b, drows_b, L, lam[:, None]))
-    zb = db[..., None] - _joints_on(plan, dJp, dJc, V[..., None]) - (dC * lam_j)[..., None]
-    dV = _substitute(plan, factors, zp, Jp, Jc, zb, scan_levels)[0][..., 0]
+    zb = db[..., None] - _joint_rows_on(plan, parts, V[..., None]) - (dC * lam_j)[..., None]
+    dV = _substitute(plan, factors, zp, Jp6, Jc6, zb, scan_levels)[0][..., 0]
     return V, dV + einsum("bjv,v->bj", Y, dlam)
 
 
 def solve_rows(model, plan, one_sided, M, p, Jp, Jc, b, C):
     """``V [bodies, 6]``: the tree solve of the joint rows, then the one-sided rows by projected
-    Gauss-Seidel on their Delassus matrix (module docstring; :func:`~jaxanim.physics._step._solve_constraints`)."""
+    Gauss-Seidel on their Delassus matrix (module docstring; :func:`~jaxanim.physics._step._solve_constraints`).
+    ``M = (M_lin, M_ang)`` ``[bodies, 3, 3]`` each; ``Jp``, ``Jc``: ``(geometric, drive)`` rows, ``[joints, k_g, 6]``
+    and ``[joints, k_d, 6]`` (``b``, ``C`` ``[joints, k_g + k_d]``): parts apart, so that a part that nothing
+    differentiates (the masses, the stable-PD rows) costs its tangent's products nothing."""
     if one_sided is None:
-        return _tree_solve(plan, M, p[..., None], Jp, Jc, b[..., None], C, model.scan_levels)[..., 0]
+        M6, Jp6, Jc6 = _assembled(M, Jp, Jc)
+        return _tree_solve(plan, M6, p[..., None], Jp6, Jc6, b[..., None], C, model.scan_levels)[..., 0]
     owner_a, rows_a, target, L, owner_b, rows_b = one_sided
-    dtype = M.dtype
+    dtype = p.dtype
     cfm = jnp.asarray(model.cfm, dtype)
     friction = jnp.asarray(model.ground.friction, dtype)
     return _solve(plan, model.scan_levels, model.ground.iterations, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target,

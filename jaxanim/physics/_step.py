@@ -42,9 +42,11 @@ def _apply_joint_torques(model: PhysicsModel, torque: Array, joint_torque: Array
 
 
 def _joint_blocks(model: PhysicsModel, state: BodyState, h, spd: StablePD | None):
-    """Each joint's rows ``(J_p [J, k, 6], J_c [J, k, 6], b [J, k], C [J, k])``: the 3 anchor rows,
-    the type's angular rows (padded to the model's largest count with ``J = 0``, ``C = 1``) with
-    targets ``-(erp / h) g``, and with ``spd`` 3 stable-PD rows on the relative angular velocity.
+    """Each joint's rows ``(J_p, J_c, b [J, k], C [J, k])``: the 3 anchor rows, the type's angular rows
+    (padded to the model's largest count with ``J = 0``, ``C = 1``) with targets ``-(erp / h) g``, and with
+    ``spd`` 3 stable-PD rows on the relative angular velocity. ``J_p`` and ``J_c`` are ``(geometric
+    [J, k_g, 6], drive [J, k_d, 6])``: the anchor and angular rows, then the stable-PD rows (``k_d`` 3, or 0
+    without ``spd``), apart (:func:`._rows_solve.solve_rows`: the drive rows do not depend on the state).
 
     The stable-PD law ``tau = k_p (e - h w) - k_d w`` (``w`` the new relative angular velocity, ``e``
     the error at step ``n``) is the soft row ``w + C lambda = b`` on the impulse ``lambda = h tau``
@@ -64,11 +66,11 @@ def _joint_blocks(model: PhysicsModel, state: BodyState, h, spd: StablePD | None
         bm, cm, active = _soft_gains(e, spd.kp[:, None], spd.kd[:, None], h)
         eye = jnp.where(active[:, :, None], jnp.eye(3, dtype=dtype)[None], 0.0)  # [J, 3, 3]
         zero = jnp.zeros_like(eye)
-        Jc = jnp.concatenate([Jc, jnp.concatenate([zero, eye], axis=-1)], axis=1)
-        Jp = jnp.concatenate([Jp, jnp.concatenate([zero, -eye], axis=-1)], axis=1)
         b = jnp.concatenate([b, bm], axis=1)
         C = jnp.concatenate([C, jnp.where(active, cm + model.cfm, 1.0)], axis=1)
-    return Jp, Jc, b, C
+        return (Jp, jnp.concatenate([zero, -eye], axis=-1)), (Jc, jnp.concatenate([zero, eye], axis=-1)), b, C
+    drive = jnp.zeros((Jp.shape[0], 0, 6), dtype)
+    return (Jp, drive), (Jc, drive), b, C
 
 
 def _soft_gains(e, kp, kd, h):
@@ -99,21 +101,19 @@ def _servo_rows(state: BodyState, servo: Servo, h):
 
 
 def _inertia_and_momentum(model: PhysicsModel, state: BodyState, v, w, I_n, h, servo: Servo | None):
-    """``(M [bodies, 6, 6], p [bodies, 6])``: ``M = diag(m I, I_n)`` and ``p = M [v*; omega*]``, with
-    the servo's soft rows folded into its body's inertia and momentum."""
+    """``((M_lin, M_ang) [bodies, 3, 3] each, p [bodies, 6])``: the blocks of ``M = diag(m I, I_n)`` and
+    ``p = M [v*; omega*]``, with the servo's soft rows folded into its body's inertia and momentum."""
     dtype = v.dtype
-    B = model.bodies.num_bodies
-    zeros33 = jnp.zeros((B, 3, 3), dtype)
-    m_eye = model.bodies.mass[:, None, None] * jnp.eye(3, dtype=dtype)[None]
-    M = jnp.concatenate([jnp.concatenate([m_eye, zeros33], -1), jnp.concatenate([zeros33, I_n], -1)], 1)
-    V = jnp.concatenate([v, w], axis=-1)
-    p = einsum("bij,bj->bi", M, V)
+    Mt = model.bodies.mass[:, None, None] * jnp.eye(3, dtype=dtype)[None]
+    p = jnp.concatenate([model.bodies.mass[:, None] * v, einsum("bij,bj->bi", I_n, w)], axis=-1)
+    Mr = I_n
     if servo is not None:
         bs, cs, active = _servo_rows(state, servo, h)
         k = jnp.where(active, 1.0 / (cs + model.cfm), 0.0)
-        M = M.at[servo.body].add(jnp.diag(k))
+        Mt = Mt.at[servo.body].add(jnp.diag(k[:3]))
+        Mr = Mr.at[servo.body].add(jnp.diag(k[3:]))
         p = p.at[servo.body].add(k * bs)
-    return M, p
+    return (Mt, Mr), p
 
 
 def _one_sided_rows(model: PhysicsModel, state: BodyState, h):
@@ -168,7 +168,7 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd:
     if Jn:
         Jp, Jc, b, C = _joint_blocks(model, state, h, spd)
     else:
-        Jp = Jc = jnp.zeros((0, 1, 6), dtype)
+        Jp = Jc = (jnp.zeros((0, 1, 6), dtype), jnp.zeros((0, 0, 6), dtype))
         b, C = jnp.zeros((0, 1), dtype), jnp.ones((0, 1), dtype)
     plan = _plan(model.joints.parent, model.joints.child, B)
     one_sided = _one_sided_rows(model, state, h)
@@ -184,11 +184,11 @@ def _solve_constraints(model: PhysicsModel, state: BodyState, v, w, I_n, h, spd:
 def _spd_torques(model: PhysicsModel, Jp, Jc, b, C, V, h):
     """``[joints, 3]`` the stable-PD torques (world frame, N m) that the velocities ``V`` imply:
     the impulse of each soft row ``J V + C lambda = b`` is ``lambda = (b - J V) / C`` and the
-    torque ``lambda / h`` (the last 3 rows of each joint's block, :func:`_joint_blocks`)."""
+    torque ``lambda / h`` (the drive rows of :func:`_joint_blocks`, ``b`` and ``C``'s last 3)."""
     par = np.asarray(model.joints.parent)
     chi = np.asarray(model.joints.child)
     Vp = jnp.where(jnp.asarray(par >= 0)[:, None], V[np.maximum(par, 0)], 0.0)
-    Jv = einsum("jkc,jc->jk", Jc[:, -3:], V[chi]) + einsum("jkc,jc->jk", Jp[:, -3:], Vp)
+    Jv = einsum("jkc,jc->jk", Jc[1], V[chi]) + einsum("jkc,jc->jk", Jp[1], Vp)
     return (b[:, -3:] - Jv) / (C[:, -3:] * h)
 
 
@@ -220,8 +220,8 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
         off = saturated[:, None]
         b = b.at[:, -3:].set(jnp.where(off, 0.0, b[:, -3:]))
         C = C.at[:, -3:].set(jnp.where(off, 1.0, C[:, -3:]))
-        Jc = Jc.at[:, -3:].set(jnp.where(off[..., None], 0.0, Jc[:, -3:]))
-        Jp = Jp.at[:, -3:].set(jnp.where(off[..., None], 0.0, Jp[:, -3:]))
+        Jc = (Jc[0], jnp.where(off[..., None], 0.0, Jc[1]))
+        Jp = (Jp[0], jnp.where(off[..., None], 0.0, Jp[1]))
         q = p.at[chi, 3:].add(h * fixed)
         if np.any(has_parent):
             q = q.at[par[has_parent], 3:].add(-h * fixed[np.nonzero(has_parent)[0]])
