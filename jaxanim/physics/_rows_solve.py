@@ -13,7 +13,8 @@ tangents of the rows and inertias (the adjoint form of ``d(J H^{-1} J') = dJ H^{
 dH H^{-1} J'``); the impulses' tangent is the forward derivative of the Gauss-Seidel sweeps, and the velocities'
 is one substitution through the joint factors with one column, ``dV = S(dp - dM V + dJ_j' lambda_j + dJ_u'
 lambda_u, db - dJ_j V - dC lambda_j) + Y d lambda_u``. Under ``jacfwd`` (``tracking.linearize``: hundreds of
-tangents) the substitutions then carry one column per tangent instead of ``1 + U``.
+tangents) the substitutions then carry one column per tangent instead of ``1 + U``. As in the tree solve's own
+JVP, the inertias' tangent is taken as symmetric (the derivative of the bodies' symmetric inertias).
 """
 
 from __future__ import annotations
