@@ -30,7 +30,7 @@ from jax.custom_derivatives import SymbolicZero
 from .._linalg import einsum
 from ._bodies import _bmm
 from ._contact import projected_gauss_seidel
-from ._tree_solve import _add_rows, _factor, _substitute, _tree_solve
+from ._tree_solve import _factor, _joints_from, _joints_on, _substitute, _tree_solve
 
 __all__ = ["solve_rows"]
 
@@ -54,24 +54,6 @@ def _rows_from(B, owner_a, rows_a, owner_b, rows_b, L, lam):
     return out
 
 
-def _joints_on(plan, Jp, Jc, X):
-    """``J_j X [joints, k, m]`` of ``X [bodies, 6, m]``."""
-    out = _bmm(Jc, X[plan.child])
-    jointed = np.flatnonzero(plan.parent >= 0)
-    if jointed.size:
-        out = _add_rows(out, jointed, _bmm(Jp[jointed], X[plan.parent[jointed]]))
-    return out
-
-
-def _joints_from(plan, Jp, Jc, lam, B):
-    """``J_j' lam [bodies, 6, m]`` of ``lam [joints, k, m]``."""
-    out = _add_rows(jnp.zeros((B, 6, lam.shape[-1]), lam.dtype), plan.child, _bmm(jnp.swapaxes(Jc, -1, -2), lam))
-    jointed = np.flatnonzero(plan.parent >= 0)
-    if jointed.size:
-        out = _add_rows(out, plan.parent[jointed], _bmm(jnp.swapaxes(Jp[jointed], -1, -2), lam[jointed]))
-    return out
-
-
 def _assembled(M, Jp, Jc):
     """The inertias ``M = (M_lin, M_ang)`` (``[bodies, 3, 3]`` each) as ``[bodies, 6, 6]`` blocks and the joint
     rows ``J = (geometric, drive)`` (``[joints, k_g, 6]``, ``[joints, k_d, 6]``) stacked ``[joints, k, 6]``."""
@@ -86,7 +68,9 @@ def _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, 
     contact problem ``(A, rhs)`` (``M``, ``Jp``, ``Jc`` in parts: :func:`_assembled`)."""
     M, Jp, Jc = _assembled(M, Jp, Jc)
     B, U = M.shape[0], target.shape[0]
-    cols = _rows_from(B, owner_a, rows_a, owner_b, rows_b, L, jnp.eye(U, dtype=M.dtype))
+    cols = jnp.zeros((B, 6, U), M.dtype).at[owner_a, :, np.arange(U)].add(rows_a)  # J_u'
+    if L:
+        cols = cols.at[owner_b, :, np.arange(U - L, U)].add(rows_b)
     P = jnp.concatenate([p[..., None], cols], axis=-1)
     bb = jnp.concatenate([b[..., None], jnp.zeros(b.shape + (U,), b.dtype)], axis=-1)
     factors = _factor(plan, M, Jp, Jc, C, scan_levels)
@@ -141,12 +125,12 @@ def _joint_rows_on(plan, parts, X):
     return jnp.concatenate(rows, axis=1)
 
 
-def _joint_rows_from(plan, parts, lam, B):
-    """``dJ_j' lam [bodies, 6, m]``."""
-    out = jnp.zeros((B, 6, lam.shape[-1]), lam.dtype)
+def _joint_rows_from(plan, parts, lam, base):
+    """``base + dJ_j' lam [bodies, 6, m]``."""
+    out = base
     for sl, t in parts:
         if t is not None:
-            out = out + _joints_from(plan, *t, lam[:, sl], B)
+            out = _joints_from(plan, *t, lam[:, sl], out)
     return out
 
 
@@ -178,7 +162,7 @@ def _solve_rows_jvp(plan, scan_levels, iterations, L, primals, tangents):
             Yi = Y[:, 3 * i:3 * i + 3]
             dA = dA - einsum("biu,bij,bjv->uv", Yi, d, Yi)
     # the right-hand side's: -dJ_u V0 - J_u S(dp - dM V0 + dJ_j' lam0, db - dJ_j V0 - dC lam0)
-    z0p = dp[..., None] - _inertia_on(dM, V0[..., None]) + _joint_rows_from(plan, parts, lam0[..., None], B)
+    z0p = _joint_rows_from(plan, parts, lam0[..., None], dp[..., None] - _inertia_on(dM, V0[..., None]))
     z0b = db[..., None] - _joint_rows_on(plan, parts, V0[..., None]) - (dC * lam0)[..., None]
     drhs = (dtarget - _rows_on(owner_a, drows_a, owner_b, drows_b, L, V0[..., None])[:, 0]
             - through(z0p, z0b)[:, 0])
@@ -186,7 +170,7 @@ def _solve_rows_jvp(plan, scan_levels, iterations, L, primals, tangents):
                         (A, rhs, friction), (dA, drhs, dfriction))
     V = V0 + einsum("bjv,v->bj", Y, lam)
     lam_j = lam0 + einsum("jkv,v->jk", LY, lam)
-    zp = (dp[..., None] - _inertia_on(dM, V[..., None]) + _joint_rows_from(plan, parts, lam_j[..., None], B)
+    zp = (_joint_rows_from(plan, parts, lam_j[..., None], dp[..., None] - _inertia_on(dM, V[..., None]))
           + _rows_from(B, owner_a, drows_a, owner_b, drows_b, L, lam[:, None]))
     zb = db[..., None] - _joint_rows_on(plan, parts, V[..., None]) - (dC * lam_j)[..., None]
     dV = _substitute(plan, factors, zp, Jp6, Jc6, zb, scan_levels)[0][..., 0]

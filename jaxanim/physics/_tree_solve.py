@@ -116,16 +116,28 @@ def _implicit_jvp(plan, scan_levels, primals, tangents):
     dM, dp, dJp, dJc, db, dC = tangents
     factors = _factor(plan, M, Jp, Jc, C, scan_levels)
     V, lam = _substitute(plan, factors, p, Jp, Jc, b, scan_levels)
-    parent, child = plan.parent, plan.child
-    jointed = np.flatnonzero(parent >= 0)
-    rhs_p = _add_rows(dp - _bmm(dM, V), child, _bmm(jnp.swapaxes(dJc, -1, -2), lam))
-    rhs_b = db - _bmm(dJc, V[child]) - dC[..., None] * lam
-    if jointed.size:
-        pa = parent[jointed]
-        rhs_p = _add_rows(rhs_p, pa, _bmm(jnp.swapaxes(dJp[jointed], -1, -2), lam[jointed]))
-        rhs_b = _add_rows(rhs_b, jointed, -_bmm(dJp[jointed], V[pa]))
+    rhs_p = _joints_from(plan, dJp, dJc, lam, dp - _bmm(dM, V))
+    rhs_b = db - _joints_on(plan, dJp, dJc, V) - dC[..., None] * lam
     dV, _ = _substitute(plan, factors, rhs_p, Jp, Jc, rhs_b, scan_levels)
     return V, dV
+
+
+def _joints_on(plan: _TreePlan, Jp, Jc, X):
+    """``J X [joints, k, m]``: every joint's rows on its child's and parent's ``X [bodies, 6, m]``."""
+    out = _bmm(Jc, X[plan.child])
+    jointed = np.flatnonzero(plan.parent >= 0)
+    if jointed.size:
+        out = _add_rows(out, jointed, _bmm(Jp[jointed], X[plan.parent[jointed]]))
+    return out
+
+
+def _joints_from(plan: _TreePlan, Jp, Jc, lam, base):
+    """``base + J' lam [bodies, 6, m]`` for the joints' multipliers ``lam [joints, k, m]``."""
+    out = _add_rows(base, plan.child, _bmm(jnp.swapaxes(Jc, -1, -2), lam))
+    jointed = np.flatnonzero(plan.parent >= 0)
+    if jointed.size:
+        out = _add_rows(out, plan.parent[jointed], _bmm(jnp.swapaxes(Jp[jointed], -1, -2), lam[jointed]))
+    return out
 
 
 def _add_rows(a, idx, x):
