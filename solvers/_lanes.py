@@ -162,18 +162,20 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
 
 
 def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], init: Any, *, times: int,
-                 lanes: int = LANES) -> Any:
+                 lanes: int = LANES, width: int = 256) -> Any:
     """``x = body(0, init)``, then ``x = body(i, x)`` for ``i = 1, 2, ...`` while ``i < times`` and
     ``needed(x)``: a few passes of which most problems need only the first.
 
     One instance is a ``lax.fori_loop`` of ``times`` passes, each a ``lax.cond`` (a pass that is not
     needed is skipped, in forward and reverse mode alike: the derivative is that of the passes run).
-    Under ``vmap`` on the CPU, with more problems than ``lanes``, the passes run through the lanes of
-    :func:`while_loop`: a problem leaves its lane after its last needed pass, so a batch costs about
-    as many passes as its problems need, where the vmapped ``lax.cond`` would run every pass on every
-    problem (its predicate is batched). ``body`` appears once in either program. Each problem's value
-    is the one-instance value (up to round-off of the vector width). ``body`` and ``needed`` may close
-    over batched values; ``i`` is a traced integer.
+    Under ``vmap`` on the CPU, with more problems than ``lanes``, the first pass runs on the whole
+    batch, ``width`` problems at a time (:func:`lane_map`), and the later ones through the lanes of
+    :func:`while_loop`, which only the problems that need them enter: a problem leaves its lane after
+    its last needed pass, so a batch costs one wide pass and about as many narrow ones as its problems
+    need, where the vmapped ``lax.cond`` would run every pass on every problem (its predicate is
+    batched). ``body`` then appears twice in the program (once at each width; once otherwise). Each
+    problem's value is the one-instance value (up to round-off of the vector width). ``body`` and
+    ``needed`` may close over batched values; ``i`` is a traced integer.
     """
 
     body_of, body_consts = hoist_closure(body, jnp.asarray(0), init)
@@ -190,11 +192,26 @@ def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], 
 
         return jax.lax.fori_loop(0, times, step, (x0, jnp.asarray(True)))[0]
 
-    def compacted(x0, *consts):
+    def compacted(axis_size, in_batched, x0, *consts):
+        # the first pass on the whole batch, width problems at a time; the later ones through the lanes, which
+        # only the problems that need them enter (their order puts them first)
+        axes = tuple(map(_axes, in_batched))
         bc, nc = consts[:nb], consts[nb:]
-        _, x = while_loop(lambda c: (c[0] == 0) | ((c[0] < times) & needed_of(c[1], *nc)),
-                          lambda c: (c[0] + 1, body_of(c[0], c[1], *bc)), (jnp.asarray(0), x0), lanes=lanes)
-        return x
+
+        def first(x, *c):
+            return lane_map(lambda x, *c: body_of(jnp.asarray(0), x, *c), x, *c, lanes=width)
+
+        x1 = jax.vmap(first, in_axes=axes[:1 + nb])(x0, *bc)
+        if times == 1:
+            return x1
+        need = jax.vmap(needed_of, in_axes=(0, *axes[1 + nb:]))(x1, *nc)
+        order = jnp.zeros(axis_size, int).at[jnp.where(need, jnp.cumsum(need) - 1, axis_size)].set(
+            jnp.arange(axis_size), mode="drop")
+        return _compacted(axis_size, lanes, (jnp.ones(axis_size, int), x1), nc + bc,
+                          in_batched[1 + nb:] + in_batched[1:1 + nb],  # the needed's constants first, as nc + bc
+                          lambda c, *k: (c[0] < times) & needed_of(c[1], *k),
+                          lambda c, *k: (c[0] + 1, body_of(c[0], c[1], *k)), len(nc),
+                          order=order, count=jnp.sum(need))[1]
 
     routed = jax.custom_batching.custom_vmap(plain)
 
@@ -203,9 +220,12 @@ def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], 
         if not any(jax.tree.leaves(in_batched)):  # as in while_loop's rule: one instance
             out = plain(x0, *cs)
             return out, jax.tree.map(lambda _: False, out)
-        axes = (_axes(in_batched[0]), *map(_axes, in_batched[1:]))
-        small = axis_size <= lanes or jax.default_backend() != "cpu"
-        out = jax.vmap(plain if small else compacted, in_axes=axes)(x0, *cs)
+        if axis_size <= lanes or jax.default_backend() != "cpu":
+            out = jax.vmap(plain, in_axes=tuple(map(_axes, in_batched)))(x0, *cs)
+        else:
+            x0 = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))), x0,
+                              in_batched[0])
+            out = compacted(axis_size, (jax.tree.map(lambda _: True, x0), *in_batched[1:]), x0, *cs)
         return out, jax.tree.map(lambda _: True, out)
 
     differentiable = eqx.filter_custom_jvp(lambda *a: routed(*a))
@@ -250,9 +270,11 @@ class _Packing:
         return jax.tree.unflatten(self.treedef, leaves)
 
 
-def _compacted(n, lanes, x0, consts, flags, cond_of, body_of, nc):
+def _compacted(n, lanes, x0, consts, flags, cond_of, body_of, nc, order=None, count=None):
     """The compacted loop over ``n`` problems: ``x0`` batched (all ``n``), ``consts[i]`` batched where
-    ``flags[i]`` says so (their rows are gathered per lane), the others shared."""
+    ``flags[i]`` says so (their rows are gathered per lane), the others shared. With ``order [n]`` and
+    ``count`` (traced), only the problems ``order[:count]`` enter the lanes, in that order; the others'
+    results are their ``x0``."""
     axes = tuple(_axes(f) for f in flags)
     batched = [i for i, f in enumerate(flags) if any(jax.tree.leaves(f))]
     xs, cs = _Packing(x0), _Packing(tuple(consts[i] for i in batched))
@@ -270,8 +292,15 @@ def _compacted(n, lanes, x0, consts, flags, cond_of, body_of, nc):
     def step(X, lc):
         return xs.pack(jax.vmap(lambda x, *c: body_of(x, *c[nc:]), in_axes=(0, *axes))(xs.unpack(X), *full(lc)))
 
+    if order is None:
+        order, count = jnp.arange(n), jnp.asarray(n)
+
+    def rows(pos):  # the problems at these places of the order (an idle lane's place n reads a valid row)
+        return jnp.take(order, pos, mode="clip")
+
     idx0 = jnp.arange(lanes)
-    carry0 = (idx0, _take(X0, idx0), _take(C, idx0), jnp.asarray(lanes), X0)
+    idx0 = jnp.where(idx0 < count, idx0, n)
+    carry0 = (idx0, _take(X0, rows(idx0)), _take(C, rows(idx0)), jnp.minimum(count, lanes), X0)
 
     def outer_cond(c):
         return jnp.any(c[0] < n)
@@ -281,14 +310,14 @@ def _compacted(n, lanes, x0, consts, flags, cond_of, body_of, nc):
         valid = idx < n
         finished = valid & jnp.invert(running(X, lc))
         # finished lanes write their problem back in place (idle and running lanes write nowhere)
-        out = jax.tree.map(lambda o, v: o.at[jnp.where(finished, idx, n)].set(v, mode="drop"), out, X)
-        # ... and take the next waiting problems, in input order
+        out = jax.tree.map(lambda o, v: o.at[jnp.where(finished, rows(idx), n)].set(v, mode="drop"), out, X)
+        # ... and take the next waiting problems, in order
         new = nxt + jnp.cumsum(finished) - 1
-        idx = jnp.where(finished, jnp.where(new < n, new, n), idx)
+        idx = jnp.where(finished, jnp.where(new < count, new, n), idx)
         nxt = nxt + jnp.sum(finished)
         load = finished & (idx < n)
-        X = _select(load, _take(X0, idx), X)
-        lc = _select(load, _take(C, idx), lc)
+        X = _select(load, _take(X0, rows(idx)), X)
+        lc = _select(load, _take(C, rows(idx)), lc)
         active = (idx < n) & running(X, lc)
         X = _select(active, step(X, lc), X)
         return idx, X, lc, nxt, out

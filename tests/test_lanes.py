@@ -172,9 +172,10 @@ def test_lane_map_reverse_chunks_a_reverse_mode_only_loop_and_keeps_its_gradient
 
 
 def test_repeat_while_equals_the_passes_one_by_one():
-    """``repeat_while`` under vmap (more problems than lanes; no problem, a few and most of them needing the later
-    passes; a batched and a shared closed-over value) equals each problem's one-instance call, which equals the
-    passes written out; forward and reverse mode are those of the passes run."""
+    """``repeat_while`` under vmap (more problems than lanes, the first pass in chunks narrower than the batch; no
+    problem, one, more than the lanes and all of them needing the later passes; a batched and a shared closed-over
+    value) equals each problem's one-instance call, which equals the passes written out; forward and reverse mode are
+    those of the passes run."""
     from solvers._lanes import repeat_while
 
     x = jnp.asarray(np.random.default_rng(1).normal(size=(_B, 3)))
@@ -182,7 +183,8 @@ def test_repeat_while_equals_the_passes_one_by_one():
     c = jnp.asarray(0.5)
 
     def fun(xi, wi, cut):  # pass i adds (i + c) * w to the first entry while it is below cut
-        return repeat_while(lambda i, a: a.at[0].add((i + c) * wi), lambda a: a[0] < cut, xi, times=4, lanes=_LANES)
+        return repeat_while(lambda i, a: a.at[0].add((i + c) * wi), lambda a: a[0] < cut, xi, times=4, lanes=_LANES,
+                            width=_LANES + 3)
 
     def written_out(xi, wi, cut):
         a = xi.at[0].add(c * wi)
@@ -193,7 +195,7 @@ def test_repeat_while_equals_the_passes_one_by_one():
         return a
 
     batched = jax.jit(jax.vmap(fun, in_axes=(0, 0, None)))
-    for cut in (-10.0, 0.0, 10.0):  # none, some and all of them run every pass
+    for cut in (-10.0, -1.5, 1.0, 10.0):  # none, one, more than the lanes (20) and all of them run a later pass
         got = batched(x, w, cut)
         for i in range(_B):
             want = written_out(x[i], w[i], cut)

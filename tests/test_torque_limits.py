@@ -115,8 +115,9 @@ def test_a_bound_no_torque_reaches_changes_nothing():
 
 def test_a_batch_of_bounded_steps_equals_the_steps_one_by_one():
     """Under vmap the limit passes run only on the chains where a torque exceeds its bound
-    (``solvers.repeat_while`` on 16 lanes): 160 chains, 5 of them with bounds that bind, step for
-    step the same states and torques as each chain stepped alone."""
+    (``solvers.repeat_while``: the unbounded step on all of them, the passes on 8 lanes): 160 chains,
+    5 of them with bounds that bind, step for step the same states and torques as each chain stepped
+    alone."""
     model, state, targets, kp, kd, _ = _chain_args(0.0)
     binding = jnp.asarray([20.0, 25.0, 30.0, 5.0, 40.0])
     limits = jnp.full((160, 3), 1e4).at[jnp.asarray([1, 40, 90, 130, 159]), 0].set(binding)

@@ -201,10 +201,11 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
     torques of the saturated joints and the implicit ones of the others.
 
     The unbounded solve and the passes are one loop (the first iteration saturates nothing), so the
-    solve (tree solve and contact rows) is compiled once, not once per pass; a pass runs only while
-    a joint not yet saturated exceeds its bound (:func:`solvers.repeat_while`: under ``vmap`` the
-    problems that need no pass leave after the unbounded solve, instead of every problem running
-    every pass). A skipped pass is one that would change nothing."""
+    solve (tree solve and contact rows) is compiled once for all passes; a pass runs only while a
+    joint not yet saturated exceeds its bound (:func:`solvers.repeat_while`: under ``vmap`` the
+    unbounded solve runs on the whole batch, and only the problems that need a pass go on to the
+    narrow lanes of the passes, instead of every problem running every pass). A skipped pass is one
+    that would change nothing."""
     par = np.asarray(model.joints.parent)
     chi = np.asarray(model.joints.child)
     has_parent = par >= 0
@@ -235,16 +236,20 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
     zeros = jnp.zeros((limit.shape[0], 3), p.dtype)
     init = (jnp.zeros_like(p), zeros, jnp.zeros(limit.shape, bool), zeros, Jp, Jc, b, C)
     V, tau, saturated, fixed = solvers.repeat_while(one_pass, needed, init, times=1 + _LIMIT_PASSES,
-                                                   lanes=_PASS_LANES)[:4]
+                                                   lanes=_PASS_LANES, width=_SOLVE_WIDTH)[:4]
     tau = jnp.where(saturated[:, None], fixed, tau)
     return V, tau
 
 
 _LIMIT_PASSES = 2
-#: Lanes of the batched passes (:func:`solvers.repeat_while`). A problem takes its lane for one to three solves, so
-#: narrow lanes waste little; measured on the 2-core CPU, SAMCON per character-step at 256 / 1024 samples: 16 lanes
-#: 75 / 74 us, 32 lanes 81 / 71 us, 128 lanes 125 / 79 us (every pass on every sample: 198 us at 1024).
-_PASS_LANES = 16
+#: Lanes of the batched passes and the width of the unbounded solve before them (:func:`solvers.repeat_while`). On
+#: the shipped walk about one sample-step in nine needs a pass, one or two solves in its lane. Measured on the 2-core
+#: CPU, SAMCON per character-step at 256 / 1024 samples: 4 lanes 64.5 us at 256, 8 lanes 64-67 / 61 us, 16 lanes
+#: 66-67 us at 256, 32 lanes 69 us at 256; the unbounded solve on all 1024 at once 73 us; every problem through 16
+#: lanes from the unbounded solve on (no wide solve; the solve compiled at one width: 4-5 s less to compile the
+#: search) 72-73 / 70 us; every pass on every sample 198 us at 1024.
+_PASS_LANES = 8
+_SOLVE_WIDTH = 256
 
 
 def _split(V):
