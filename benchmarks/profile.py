@@ -428,12 +428,12 @@ KERNELS: tuple[Kernel, ...] = (
            "tracking: SAMCON search per character-step ≤ 1.5x the plain step (issue 32)", _samcon_search,
            "Each sample's physics step solves the joint tree and the contact rows once, on the whole batch, and "
            "again in the torque-limit passes only where a joint exceeds its bound (`solvers.repeat_while`: those "
-           "samples alone, on narrow lanes); the call runs hundreds of thousands of instructions of under a "
-           "microsecond each (the count above). The top ones, each run as often, are the row updates of the "
-           "projected Gauss-Seidel sweeps (a dot, a divide, a subtract and a scatter per contact row, row after "
-           "row), run most often in the passes' lanes of a few samples: the per-instruction cost of the XLA:CPU "
-           "runtime, not arithmetic, sets the time. Wider lanes spread it over more samples but leave more lanes "
-           "idle (measured, in the lanes constant's comment in `jaxanim/physics/_step.py`)"),
+           "samples alone, on narrow lanes). The time is spread thin: no instruction takes more than a few percent, "
+           "the largest being the elites' `top_k` sort, the slices and scatters of the Gauss-Seidel sweeps (one per "
+           "contact point and sweep) and the copies between small kernels (the data-movement fusions). Each of the "
+           "instructions counted above costs microseconds: the per-instruction cost of the XLA:CPU runtime on "
+           "small arrays, not arithmetic, sets the time. Wider lanes spread it over more samples but leave more "
+           "lanes idle (measured, in the lanes constant's comment in `jaxanim/physics/_step.py`)"),
     Kernel(f"feedback gains: linearize, {GAINS_PROFILED_FRAMES} frames", "float64", 1,
            "tracking-walk: feedback gains ≤ 50 ms per frame; compiling the search and the gains ≤ 15 s (issue 32)",
            _linearize, "`jax.jacfwd` carries every body-state and control tangent through each frame's physics steps "
