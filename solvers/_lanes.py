@@ -90,7 +90,7 @@ def while_loop(cond: Callable[[Any], Any], body: Callable[[Any], Any], init: Any
         if axis_size <= lanes or jax.default_backend() != "cpu":
             out = jax.vmap(loop, in_axes=(_axes(in_batched[0]), *map(_axes, in_batched[1:])))(x0, *consts)
             return out, jax.tree.map(lambda _: True, out)
-        x0 = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))), x0, in_batched[0])
+        x0 = _broadcast(x0, in_batched[0], axis_size)
         return _compacted(axis_size, lanes, x0, consts, in_batched[1:], cond_of, body_of, nc), \
             jax.tree.map(lambda _: True, x0)
 
@@ -223,8 +223,7 @@ def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], 
         if axis_size <= lanes or jax.default_backend() != "cpu":
             out = jax.vmap(plain, in_axes=tuple(map(_axes, in_batched)))(x0, *cs)
         else:
-            x0 = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))), x0,
-                              in_batched[0])
+            x0 = _broadcast(x0, in_batched[0], axis_size)
             out = compacted(axis_size, (jax.tree.map(lambda _: True, x0), *in_batched[1:]), x0, *cs)
         return out, jax.tree.map(lambda _: True, out)
 
@@ -235,6 +234,11 @@ def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], 
         return eqx.filter_jvp(plain, primals, tangents)
 
     return differentiable(init, *body_consts, *needed_consts)
+
+
+def _broadcast(tree, batched_tree, n):
+    """``tree`` with its unbatched leaves broadcast to a leading axis of ``n`` (a loop state is batched whole)."""
+    return jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (n, *jnp.shape(x))), tree, batched_tree)
 
 
 def _axes(batched_tree):

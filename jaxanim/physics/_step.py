@@ -201,7 +201,8 @@ def _limit_torques(model: PhysicsModel, plan, one_sided, M, p, Jp, Jc, b, C, lim
     torques of the saturated joints and the implicit ones of the others.
 
     The unbounded solve and the passes are one loop (the first iteration saturates nothing), so the
-    solve (tree solve and contact rows) is compiled once for all passes; a pass runs only while a
+    solve (tree solve and contact rows) is compiled once for all passes (under ``vmap`` on the CPU
+    once more, at the batch's width, for the unbounded solve); a pass runs only while a
     joint not yet saturated exceeds its bound (:func:`solvers.repeat_while`: under ``vmap`` the
     unbounded solve runs on the whole batch, and only the problems that need a pass go on to the
     narrow lanes of the passes, instead of every problem running every pass). A skipped pass is one
