@@ -58,6 +58,12 @@ def hoist_closure(fun: Callable, *example_args) -> tuple[Callable, list]:
     return converted, [consts[i] for i in hoisted]
 
 
+def _check_count(name: str, value) -> None:
+    """A static count (lanes, a width, passes) must be an int >= 1: named here, not a division by zero inside."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+
+
 def _take(tree, idx):
     """Rows ``idx`` of every leaf (indices clipped: an idle lane reads a valid row)."""
     return jax.tree.map(lambda x: jnp.take(x, idx, axis=0, mode="clip"), tree)
@@ -72,6 +78,7 @@ def while_loop(cond: Callable[[Any], Any], body: Callable[[Any], Any], init: Any
 
     ``cond`` and ``body`` may close over batched values (they are hoisted into arguments).
     """
+    _check_count("lanes", lanes)
     cond_of, cond_consts = hoist_closure(cond, init)
     body_of, body_consts = hoist_closure(body, init)
     nc = len(cond_consts)
@@ -117,6 +124,7 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
     """
     if not chunks:
         return fun(*args)
+    _check_count("lanes", lanes)
     fun_of, consts = hoist_closure(fun, *args)
     routed = jax.custom_batching.custom_vmap(lambda *a: fun_of(*a))
 
@@ -178,6 +186,8 @@ def repeat_while(body: Callable[[Any, Any], Any], needed: Callable[[Any], Any], 
     ``needed`` may close over batched values; ``i`` is a traced integer.
     """
 
+    for name, count in (("times", times), ("lanes", lanes), ("width", width)):
+        _check_count(name, count)
     body_of, body_consts = hoist_closure(body, jnp.asarray(0), init)
     needed_of, needed_consts = hoist_closure(needed, init)
     nb = len(body_consts)

@@ -194,6 +194,11 @@ def test_repeat_while_equals_the_passes_one_by_one():
             a = a.at[0].add((i + c) * wi)
         return a
 
+    for keyword, value in (("width", 0), ("lanes", 2.0), ("times", 0)):  # named, not a division by zero inside
+        counts = {"times": 4, "lanes": _LANES, "width": _LANES, keyword: value}
+        with pytest.raises(ValueError, match=f"{keyword}: expected an int >= 1, got {value!r}"):
+            jax.vmap(lambda xi: repeat_while(lambda i, a: a, lambda a: a[0] < 0, xi, **counts))(x)
+
     batched = jax.jit(jax.vmap(fun, in_axes=(0, 0, None)))
     for cut in (-10.0, -1.5, 1.0, 10.0):  # none, one, more than the lanes (20) and all of them run a later pass
         got = batched(x, w, cut)
