@@ -7,6 +7,9 @@ and row-vector arithmetic (static Python loops), which XLA fuses; larger systems
 ``jnp.linalg.cholesky`` / ``jax.scipy.linalg.cho_solve``. Both paths return NaN factors for a matrix
 that is not positive definite, like ``jnp.linalg.cholesky``.
 
+:func:`solve` is a small general solve (Gauss-Jordan with partial pivoting) for batched doubling steps,
+where LAPACK's per-system LU dominated the time.
+
 Every matrix product of the library states its precision: :data:`HIGHEST` unless a kernel takes a
 documented ``precision`` option. Without it an NVIDIA GPU runs a float32 ``dot`` in TF32 (about 10
 bits of mantissa), so float32 results would not be float32-accurate there. :func:`matmul`,
@@ -95,3 +98,37 @@ def mm(a: Float[Array, "p q"], b: Float[Array, "q ..."]) -> Float[Array, "p ..."
     if b.ndim == 1:
         return jnp.sum(a * b[None, :], axis=1)
     return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+
+
+def solve(W: Float[Array, "n n"], Z: Float[Array, "n k"]) -> Float[Array, "n k"]:
+    """``W^{-1} Z`` for a small square ``W``: Gauss-Jordan inversion in place with partial pivoting, then one
+    product.
+
+    Under ``vmap`` on XLA:CPU, ``jnp.linalg.solve`` calls LAPACK's ``getrf`` and ``trsm`` once per system, about
+    three microseconds for a 12 x 12 system with 24 right-hand sides; here each of the ``n`` pivot steps is a
+    row exchange (a gather) and one fused elimination over the whole batch, and the right-hand sides take one
+    batched ``dot``: a third of the time. Each step picks the largest remaining entry of its column as the pivot
+    (``jnp.linalg.solve``'s choice), and the result agrees with it to round-off. A singular ``W`` gives
+    non-finite values, as LU does. The pivot steps run in a ``fori_loop`` unrolled by two: fully unrolled
+    they were 5 % faster in the batched DARE at 1,024 and took 70 % longer to compile.
+    """
+    n = W.shape[0]
+    rows = jnp.arange(n)
+
+    def pivot(k, carry):
+        M, order = carry
+        p = jnp.argmax(jnp.where(rows >= k, jnp.abs(M[:, k]), -1))
+        at_k, at_p = rows == k, rows == p
+        swap = jnp.where(at_k, p, jnp.where(at_p, k, rows))
+        M, order = M[swap], order[swap]
+        # the exchanged rows in memory before the elimination reads them: fused into it, the exchange is
+        # recomputed per entry (measured 5x slower)
+        M = lax.optimization_barrier(M)
+        inv = 1 / M[k, k]
+        pivot_row = jnp.where(at_k, inv, M[k] * inv)
+        column = jnp.where(at_k, 0, M[:, k])
+        M = jnp.where(at_k[None, :], 0, M) - column[:, None] * pivot_row[None, :]
+        return jnp.where(at_k[:, None], pivot_row[None, :], M), order
+
+    M, order = lax.fori_loop(0, n, pivot, (W, rows), unroll=2)
+    return matmul(M, Z[order])

@@ -19,7 +19,9 @@ removed by the substitution ``u = v - R^{-1} S x`` (``A -> A - B R^{-1} S``,
 
 ``H_k`` converges to ``P`` quadratically: its error is ``O(rho^(2^(k+1)))`` with ``rho`` the spectral
 radius of the closed loop ``A - B K``, so a few (typically 5-12) iterations reach machine precision.
-Each iteration costs one LU solve with ``2n`` right-hand sides and a few ``n x n`` products.
+Each iteration costs one solve with ``2n`` right-hand sides (Gauss-Jordan with partial pivoting,
+:func:`solvers._linalg.solve`: under ``vmap`` on XLA:CPU a third of the time of LAPACK's per-system LU) and a
+few ``n x n`` products.
 
 **Infinite horizon, continuous** (:func:`care`): the stabilizing solution of
 ``A'P + PA - (PB + S') R^{-1} (B'P + S) + Q = 0`` with ``K = R^{-1} (B'P + S)``, ``u = -K x``
@@ -57,13 +59,13 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._checks import _all_finite, _amax, _as_float, _check_int, _check_shape, _common_dtype, _fmt, _sym
 from ._iterate import Iteration, iterate
-from ._linalg import matmul
+from ._linalg import matmul, solve
 from ._results import RESULTS
 
 __all__ = ["RiccatiSolution", "care", "dare"]
 
 _STEIN_MAX_STEPS = 64  # doublings of Smith's iteration in the implicit derivative: 2^64 terms
-#: Lanes of a batched doubling (:func:`solvers._lanes.while_loop`). A doubling step is one LU solve and
+#: Lanes of a batched doubling (:func:`solvers._lanes.while_loop`). A doubling step is one small solve and
 #: six products of n x n blocks, a few microseconds a system, so the lanes' per-step cost of XLA:CPU
 #: instructions weighs more than the steps that the slowest problem of a wide lane adds. Measured on the
 #: 2-core CPU, 12 x 4 systems, ms per batch of 1024 / 10^4: 128 lanes 66 / 555, 512 lanes 61 / 480,
@@ -138,11 +140,13 @@ def _sda(
 
     def advance(c: _Doubling) -> _Doubling:
         W = eye + matmul(c.G, c.H)
-        Z = jnp.linalg.solve(W, jnp.concatenate([c.A, c.G], axis=1))
+        Z = solve(W, jnp.concatenate([c.A, c.G], axis=1))
         WA, WG = Z[:, :n], Z[:, n:]
         A1 = matmul(c.A, WA)
         G1 = _sym(c.G + matmul(matmul(c.A, WG), c.A.T))
-        dH = _sym(matmul(c.A.T, matmul(c.H, WA)))
+        # A' as a copy: a dot that contracts its left operand's rows takes XLA:CPU's slow path (3x)
+        At = jax.lax.optimization_barrier(c.A.T)
+        dH = _sym(matmul(At, matmul(c.H, WA)))
         H1 = c.H + dH
         finite = _all_finite(A1, G1, H1)
         converged = finite & (_amax(dH) <= atol + rtol * _amax(H1)) & (_amax(A1) <= a_tol)
@@ -383,6 +387,16 @@ def dare(
     return _dare(A, B, Q, R, S, rtol, atol, max_steps, fixed_steps, throw)
 
 
+def _discrete_gain(A, B, Q, R, S, P):
+    """The gain ``K`` of the DARE's solution ``P``, the largest entry of its residual and the residual's scale."""
+    BP = matmul(B.T, P)
+    N = matmul(BP, A) + S  # B'PA + S
+    K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + matmul(BP, B))), True), N)
+    APA = matmul(matmul(A.T, P), A)
+    F = APA - P - matmul(N.T, K) + Q
+    return K, _amax(F), _amax(APA) + _amax(P) + _amax(Q)
+
+
 @eqx.filter_jit
 def _dare(A, B, Q, R, S, rtol, atol, max_steps, fixed_steps, throw) -> RiccatiSolution:
     Q, R = _sym(Q), _sym(R)
@@ -391,13 +405,8 @@ def _dare(A, B, Q, R, S, rtol, atol, max_steps, fixed_steps, throw) -> RiccatiSo
     At, G, Ht, _ = _remove_cross_term(sg(A), sg(B), sg(Q), sg(R), sg(S))
     it = _sda(At, G, Ht, rtol, atol, max_steps, fixed_steps)
     P = _implicit_discrete(sg(it.state.H), A, B, Q, R, S)
-    BP = matmul(B.T, P)
-    N = matmul(BP, A) + S  # B'PA + S
-    K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + matmul(BP, B))), True), N)
-    APA = matmul(matmul(A.T, P), A)
-    F = APA - P - matmul(N.T, K) + Q
-    residual = _amax(F)
-    result = _riccati_result(P, K, it, residual, _amax(APA) + _amax(P) + _amax(Q))
+    K, residual, scale = _discrete_gain(A, B, Q, R, S, P)
+    result = _riccati_result(P, K, it, residual, scale)
     if throw:
         P = result.error_if(P, result != RESULTS.successful)
     stats = dict(num_steps=it.num_steps, residual=residual)
