@@ -405,9 +405,13 @@ KERNELS: tuple[Kernel, ...] = (
            f"As the pendulum's, with 4-vector states, and hundreds of iterations per problem (the profile runs the first "
            f"{CART_POLE_PROFILED_STEPS}: a trace of all of them does not fit in memory)."),
     Kernel("DARE 12x4", "float64", 1024, "oc-dare: ≥ 50x the scipy loop", _dare,
-           "Each doubling step solves (I + G H) systems of 12x12: LAPACK getrf / trsm called per system (a "
-           "batched custom call loops over the batch in C++): the library-call shares above; the rest is hundreds "
-           "of small fusions per doubling step on 12 x 12 blocks."),
+           "Each doubling step is one 12x12 solve with 24 right-hand sides and seven batched 12x12 products on "
+           "the lanes' systems. The solve is Gauss-Jordan with partial pivoting (`solvers._linalg.solve`; "
+           "LAPACK's getrf / trsm per system took three times as long): per pivot a row exchange (the gathers "
+           "above) and one elimination (the selects), a kernel pair run once per pivot on all lanes. The products "
+           "are XLA:CPU's batched dots. No kernel dominates; what is left is the runtime's cost per small kernel "
+           "and the gathers' per-element indexing, which an element-by-element form with the batch last made "
+           "worse (the fused selects ran several times slower than these gathers; see `solvers/_linalg.py`)."),
     Kernel("rollout (penalty)", "float64", 1024, "physics: penalty ≤ 0.5x MuJoCo C", _physics("penalty"),
            "Every step eliminates the joint-constrained system level by level of the body tree (6x6 articulated "
            "inertias folded into the parents, then back-substitution), then the contact forces of every contact "
