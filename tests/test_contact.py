@@ -1,7 +1,7 @@
 """Tests of jaxanim.contact through jaxanim.physics: a box dropped on the ground comes to rest
 (complementarity: no sinking beyond 1 mm; penalty: the static deflection m g / (4 k_p)), a box on
 a slope sticks below the friction angle and slides with the closed-form acceleration above it,
-contact points of each shape, and bad input."""
+contact points of each shape, the choice of the lowest points (as top_k), and bad input."""
 
 from __future__ import annotations
 
@@ -121,3 +121,17 @@ def test_max_points_solves_only_the_lowest_points():
     assert float(final[None].position[0, 1]) == pytest.approx(0.1, abs=1e-6)  # held on its face
     assert float(final[1].position[0, 1]) < 0.1 - 1e-3  # one corner held: it sinks and tips
     assert float(jnp.max(jnp.abs(final[1].angular_velocity))) > 0.1
+
+
+def test_lowest_points_are_top_k_of_the_negated_heights():
+    """The complementarity step's choice of its lowest ``max_points`` points equals ``lax.top_k(-phi, k)``:
+    same indices, same order, ties (equal heights, several at the minimum) to the lower index."""
+    from jaxanim.physics._contact import _lowest
+
+    rng = np.random.default_rng(3)
+    lowest = jax.jit(jax.vmap(_lowest, in_axes=(0, None)), static_argnums=1)
+    for k in (1, 2, 8):
+        phi = rng.standard_normal((200, 66))
+        phi[:50] = np.round(phi[:50], 1)  # many ties
+        phi[50:60, :20] = -1.0  # more points at the minimum than k
+        np.testing.assert_array_equal(lowest(jnp.asarray(phi), k), jax.lax.top_k(-jnp.asarray(phi), k)[1])

@@ -166,6 +166,21 @@ def penalty_loads(ground: Ground, bodies: RigidBodies, state: BodyState) -> tupl
     return force, torque
 
 
+def _lowest(phi: Array, k: int) -> Array:
+    """The indices of the ``k`` smallest entries of ``phi``, smallest first, ties to the lower index: those of
+    ``lax.top_k(-phi, k)``, picked one at a time. For the few points of a step (``k`` up to 8 of 66) these ``k``
+    reductions cost under a tenth of the sort that ``top_k`` runs on XLA:CPU (measured: the sort was 9 % of a
+    complementarity step at a batch of 64)."""
+    free = jnp.ones(phi.shape, bool)
+    picked = []
+    for _ in range(k):
+        lowest = jnp.min(jnp.where(free, phi, jnp.inf))
+        i = jnp.argmax(free & (phi == lowest))  # the first free entry at the minimum
+        picked.append(i)
+        free = free & (jnp.arange(phi.shape[0]) != i)
+    return jnp.stack(picked)
+
+
 def contact_rows(ground: Ground, bodies: RigidBodies, state: BodyState, h) -> tuple[Array, Array, Array]:
     """The complementarity rows in compact form: ``(owner [3K], rows [3K, 6], target [3K])``: row
     ``u`` acts on body ``owner[u]``'s ``[v; omega]``; rows are ordered (normal, t1, t2) per point;
@@ -174,7 +189,7 @@ def contact_rows(ground: Ground, bodies: RigidBodies, state: BodyState, h) -> tu
     owner, r, phi, _ = contact_geometry(ground, bodies, state)
     owner = jnp.asarray(owner)
     if ground.max_points is not None and ground.max_points < phi.shape[0]:
-        idx = jax.lax.top_k(-phi, ground.max_points)[1]
+        idx = _lowest(phi, ground.max_points)
         owner, r, phi = owner[idx], r[idx], phi[idx]
     K = phi.shape[0]
     n = ground.normal
