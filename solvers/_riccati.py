@@ -69,7 +69,8 @@ _STEIN_MAX_STEPS = 64  # doublings of Smith's iteration in the implicit derivati
 #: six products of n x n blocks, a few microseconds a system, so the lanes' per-step cost of XLA:CPU
 #: instructions weighs more than the steps that the slowest problem of a wide lane adds. Measured on the
 #: 2-core CPU, 12 x 4 systems, ms per batch of 1024 / 10^4: 128 lanes 66 / 555, 512 lanes 61 / 480,
-#: 1024 lanes 50 / 465.
+#: 1024 lanes 50 / 465; again with the Gauss-Jordan solve: 512 lanes 33 / 321-324, 1024 lanes 26-27 / 299-311,
+#: 2048 lanes 27 / 337.
 _DOUBLING_LANES = 1024
 
 
