@@ -424,10 +424,13 @@ KERNELS: tuple[Kernel, ...] = (
            "On top of the tree solve (the penalty row's cause), the contact rows are solved by projected "
            "Gauss-Seidel, a fixed number of sweeps every step, point after point (sequential by nature): each "
            "point's update is a handful of kernels (its rows' product, divides, the write into the impulses), each "
-           "on one chunk's 64 characters, so the per-instruction cost of the XLA:CPU runtime sets the time (the "
-           "count above). Wider chunks spread it over more "
-           "characters but stream the tree solve's blocks from memory (measured slower: the chunk constant's "
-           "comment in `jaxanim/physics/_rollout.py`)."),
+           "on one chunk's 64 characters: the most frequent instructions above. They are not most of the time, "
+           "though: measured with a single sweep the step is still well over the penalty step's time, and nearly "
+           "as much with two points as with eight, so most of the gap is a fixed cost of the contact path, the "
+           "contact rows' columns carried as extra right-hand sides through every level of the tree solve and "
+           "their Delassus product, kernels on [bodies, 6, rows] blocks run once a step. Wider chunks spread "
+           "every kernel over more characters but stream the tree solve's blocks from memory (measured slower: "
+           "the chunk constant's comment in `jaxanim/physics/_rollout.py`)."),
     Kernel(f"SAMCON search, {SEARCH_PROFILED_WINDOWS} window", "float64", 256,
            "tracking: SAMCON search per character-step ≤ 1.5x the plain step (issue 32)", _samcon_search,
            "Each sample's physics step solves the joint tree and the contact rows once, on the whole batch, and "
