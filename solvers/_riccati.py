@@ -388,16 +388,6 @@ def dare(
     return _dare(A, B, Q, R, S, rtol, atol, max_steps, fixed_steps, throw)
 
 
-def _discrete_gain(A, B, Q, R, S, P):
-    """The gain ``K`` of the DARE's solution ``P``, the largest entry of its residual and the residual's scale."""
-    BP = matmul(B.T, P)
-    N = matmul(BP, A) + S  # B'PA + S
-    K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + matmul(BP, B))), True), N)
-    APA = matmul(matmul(A.T, P), A)
-    F = APA - P - matmul(N.T, K) + Q
-    return K, _amax(F), _amax(APA) + _amax(P) + _amax(Q)
-
-
 @eqx.filter_jit
 def _dare(A, B, Q, R, S, rtol, atol, max_steps, fixed_steps, throw) -> RiccatiSolution:
     Q, R = _sym(Q), _sym(R)
@@ -406,8 +396,13 @@ def _dare(A, B, Q, R, S, rtol, atol, max_steps, fixed_steps, throw) -> RiccatiSo
     At, G, Ht, _ = _remove_cross_term(sg(A), sg(B), sg(Q), sg(R), sg(S))
     it = _sda(At, G, Ht, rtol, atol, max_steps, fixed_steps)
     P = _implicit_discrete(sg(it.state.H), A, B, Q, R, S)
-    K, residual, scale = _discrete_gain(A, B, Q, R, S, P)
-    result = _riccati_result(P, K, it, residual, scale)
+    BP = matmul(B.T, P)
+    N = matmul(BP, A) + S  # B'PA + S
+    K = jsl.cho_solve((jnp.linalg.cholesky(_sym(R + matmul(BP, B))), True), N)
+    APA = matmul(matmul(A.T, P), A)
+    F = APA - P - matmul(N.T, K) + Q
+    residual = _amax(F)
+    result = _riccati_result(P, K, it, residual, _amax(APA) + _amax(P) + _amax(Q))
     if throw:
         P = result.error_if(P, result != RESULTS.successful)
     stats = dict(num_steps=it.num_steps, residual=residual)
