@@ -152,7 +152,8 @@ def test_a_cycle_of_joints_is_an_error():
 
 def test_scan_levels_gives_the_same_steps():
     """A branching tree (free root, two children, a grandchild on a limited hinge) stepped with the
-    depth levels written out and in a lax.scan: the same states to the bit."""
+    depth levels written out and in a lax.scan: the same states to round-off (the two programs' small
+    matrix-vector products may round differently: 1e-13 after the 60 steps)."""
     bodies = rigid.make_bodies([("capsule", (0.05, 0.3))] * 4, names=("root", "a", "b", "c"))
     pos = np.array([[0.0, 1.0, 0.0], [0.4, 1.0, 0.0], [-0.4, 1.0, 0.0], [0.8, 1.0, 0.0]])
     q = rot.rotation_between(jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 0.0, 0.0]))
@@ -166,7 +167,8 @@ def test_scan_levels_gives_the_same_steps():
     ])
     runs = [physics.rollout(physics.make_model(bodies, J, scan_levels=flag), state, _DT, 60) for flag in (False, True)]
     for field in ("position", "orientation", "linear_velocity", "angular_velocity"):
-        np.testing.assert_array_equal(getattr(runs[0].trajectory, field), getattr(runs[1].trajectory, field))
+        np.testing.assert_allclose(getattr(runs[0].trajectory, field), getattr(runs[1].trajectory, field),
+                                   rtol=1e-11, atol=1e-12)
 
 
 @pytest.mark.parametrize("scan_levels", [False, True], ids=["levels-written-out", "levels-scanned"])
@@ -288,3 +290,50 @@ def test_rows_solve_jvp_equals_autodiff_through_every_step():
     assert np.abs(np.asarray(d1) - d3).max() > 1e-3
     for a, b in zip(j1, j2):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * float(np.abs(b).max()))
+
+
+@pytest.mark.parametrize("scan_levels", [False, True], ids=["levels-written-out", "levels-scanned"])
+def test_delassus_along_the_chains_equals_the_columns_through_the_tree_solve(scan_levels):
+    """The one-sided rows' Delassus matrix carried up the rows' chains of ancestors (the rows solve's path for few
+    rows) equals ``J_u Y`` of the columns ``Y = H^{-1} J_u'`` through the tree solve, and so do the velocities of
+    both paths, to round-off: contact points on a body jointed to the world, on its child and on a free body, a
+    limit row on the child and one on the grandchild (its momentum on the parent too)."""
+    from jaxanim.physics import _rows_solve as R
+    from jaxanim.physics import _tree_solve as T
+    from jaxanim.physics._contact import projected_gauss_seidel
+
+    rng = np.random.default_rng(7)
+    parent, child, B = (-1, 0, 1), (0, 1, 2), 4
+    plan = T._plan(parent, child, B)
+    nj, K, L = len(parent), 3, 2
+    U = 3 * K + L
+
+    def spd():
+        a = rng.normal(size=(B, 3, 3))
+        return jnp.asarray(a @ np.swapaxes(a, -1, -2) + 3 * np.eye(3))
+
+    M = (spd(), spd())
+    p = jnp.asarray(rng.normal(size=(B, 6)))
+    Jp = (jnp.asarray(rng.normal(size=(nj, 3, 6))), jnp.zeros((nj, 0, 6)))
+    Jc = (jnp.asarray(rng.normal(size=(nj, 3, 6))), jnp.zeros((nj, 0, 6)))
+    b, C = jnp.asarray(rng.normal(size=(nj, 3))), jnp.asarray(1e-3 * np.abs(rng.normal(size=(nj, 3))))
+    owner_a, owner_b = np.array([0, 0, 0, 1, 1, 1, 3, 3, 3, 1, 2]), np.array([0, 1])
+    rows_a, rows_b = jnp.asarray(rng.normal(size=(U, 6))), jnp.asarray(rng.normal(size=(L, 6)))
+    target = jnp.asarray(rng.normal(size=U) + 5.0)
+    mu, cfm = jnp.asarray(0.6), jnp.asarray(1e-6)
+
+    @jax.jit
+    def run():
+        (factors, _, _), V0, _, Y, _, A, rhs = R._columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a,
+                                                          target, owner_b, rows_b, cfm)
+        chains = R._delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b)
+        lam = projected_gauss_seidel(A, rhs, mu, 10, num_single=L)
+        columns = V0 + jnp.einsum("bjv,v->bj", Y, lam)
+        chained = R._solve(plan, scan_levels, 10, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b,
+                           mu, cfm)
+        return A, R._contact_problem(chains, rhs, cfm)[0], lam, columns, chained
+
+    A, A2, lam, V, V2 = (np.asarray(a) for a in run())
+    assert U <= R._CHAIN_ROWS and np.count_nonzero(lam) >= 3  # the path under test, and impulses that act
+    np.testing.assert_allclose(A2, A, rtol=0, atol=1e-13 * np.abs(A).max())
+    np.testing.assert_allclose(V2, V, rtol=0, atol=1e-12 * np.abs(V).max())

@@ -3,7 +3,11 @@ derivative.
 
 :func:`solve_rows` eliminates the joints exactly (:func:`~jaxanim.physics._tree_solve._tree_solve`, with the
 one-sided rows' columns ``Y = H^{-1} J_u'`` as extra right-hand sides), forms their Delassus matrix
-``A = J_u Y`` and solves the contact problem on it by projected Gauss-Seidel.
+``A = J_u Y`` and solves the contact problem on it by projected Gauss-Seidel. For a few rows (at most
+:data:`_CHAIN_ROWS`: a contact step's 8 points) it forms ``A`` without the columns: each row's momentum is carried
+from its body up its chain of ancestors by the elimination's per-body blocks, and ``A`` is the sum of their products
+at the bodies that two chains share (:func:`_delassus`; the same matrix to round-off); the velocities then take two
+one-column solves, before and after the impulses.
 
 Its derivative (:func:`_solve_rows_jvp`) needs no derivative of the ``U`` columns ``Y``. With ``S`` the joint
 system's solve (``K = [[M, -J_j'], [J_j, C]]``, so that ``K' = D K D`` with ``D = diag(I, -I)``), ``J_u S(z) =
@@ -30,7 +34,8 @@ from jax.custom_derivatives import SymbolicZero
 from .._linalg import einsum
 from ._bodies import _bmm
 from ._contact import projected_gauss_seidel
-from ._tree_solve import _factor, _joints_from, _joints_on, _substitute, _tree_solve
+from ._tree_solve import (_body_blocks, _factor, _prod, _joints_from, _joints_on, _root_chains, _substitute,
+                          _tree_solve)
 
 __all__ = ["solve_rows"]
 
@@ -78,17 +83,81 @@ def _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, 
     V0, Y, lam0, LY = Vall[..., 0], Vall[..., 1:], lam_all[..., 0], lam_all[..., 1:]
     A = _rows_on(owner_a, rows_a, owner_b, rows_b, L, Y)
     rhs = target - _rows_on(owner_a, rows_a, owner_b, rows_b, L, V0[..., None])[:, 0]
-    A = 0.5 * (A + A.T) + cfm * jnp.eye(U, dtype=A.dtype)
-    return (factors, Jp, Jc), V0, lam0, Y, LY, A, rhs
+    return (factors, Jp, Jc), V0, lam0, Y, LY, *_contact_problem(A, rhs, cfm)
+
+
+def _contact_problem(A, rhs, cfm):
+    """The Delassus matrix made exactly symmetric, with ``cfm`` on its diagonal, and ``rhs``."""
+    return 0.5 * (A + A.T) + cfm * jnp.eye(A.shape[0], dtype=A.dtype), rhs
+
+
+def _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b):
+    """``J_u H^{-1} J_u' [U, U]`` along the rows' bodies' ancestor chains (:func:`_body_blocks`), without a
+    right-hand side per row through the tree solve: row ``u``'s momentum ``z_u`` (``rows_a`` on ``owner_a``, and
+    for the last ``L`` rows ``rows_b`` on its parent ``owner_b``) carried from its body to the root by the ``T``
+    blocks, ``phi_u [depth]``, then ``A_uv = sum_d phi_u[d]' D phi_v[d]`` over the depths ``d`` where the two
+    chains share their body (their common ancestors). The first ``U - L`` rows are the contact points' triples
+    (one body each): they are carried together, three columns on one chain."""
+    D, T = _body_blocks(plan, factors, B, scan_levels)
+    chain, depth = _root_chains(plan, B)
+    U = rows_a.shape[0]
+    K = (U - L) // 3
+    groups = []  # (owner [n], z_a [n, 6, c], z_b [n, 6, c]): the points' triples, then the single rows
+    if K:
+        za = jnp.swapaxes(rows_a[:3 * K].reshape(K, 3, 6), -1, -2)
+        groups.append((owner_a[:3 * K:3], za, None))
+    if L:
+        groups.append((owner_a[3 * K:], rows_a[3 * K:, :, None], rows_b[:, :, None]))
+    Phis, Psis, row_bodies = [], [], []
+    for owner, za, zb in groups:
+        bodies = jnp.asarray(chain)[owner]  # [n, depths]
+        du = jnp.asarray(depth)[owner][:, None, None]
+        Tg, phi, Phi = T[bodies], jnp.zeros_like(za), []
+        for d in range(chain.shape[1] - 1, -1, -1):
+            if Phi:  # from the body at depth d + 1 to its parent
+                phi = _prod(Tg[:, d + 1], phi)
+            phi = phi + jnp.where(du == d, za, 0.0)
+            if zb is not None:
+                phi = phi + jnp.where(du == d + 1, zb, 0.0)
+            Phi.append(phi)
+        Phi = jnp.stack(Phi[::-1], axis=1)  # [n, depths, 6, c]
+        Psi = _prod(D[bodies], Phi)
+        c = za.shape[-1]
+        Phis.append(jnp.moveaxis(Phi, -1, 1).reshape(-1, *Phi.shape[1:3]))  # [n c, depths, 6]
+        Psis.append(jnp.moveaxis(Psi, -1, 1).reshape(-1, *Psi.shape[1:3]))
+        row_bodies.append(jnp.repeat(bodies, c, axis=0))
+    cat = lambda xs: xs[0] if len(xs) == 1 else jnp.concatenate(xs)  # noqa: E731
+    Phi, Psi, bodies = cat(Phis), cat(Psis), cat(row_bodies)
+    shared = (bodies[:, None, :] == bodies[None, :, :]) & (bodies != B)[:, None, :]
+    return einsum("udi,vdi,uvd->uv", Phi, Psi, shared.astype(Phi.dtype))
+
+
+#: The most one-sided rows whose Delassus matrix :func:`_solve` forms along their chains (:func:`_delassus`); more
+#: go through the tree solve as columns. Measured on the 2-core CPU, the standing character's rollout in chunks of
+#: 64, us per character-step, chains / columns: 8 contact points (24 rows) 49-53 / 56-58 at a batch of 1,024,
+#: 16 points (48 rows) 111 / 102 at 64 (the chains' product grows with the rows squared times the tree's depth).
+_CHAIN_ROWS = 32
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3))
 def _solve(plan, scan_levels, iterations, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b,
            friction, cfm):
-    _, V0, _, Y, _, A, rhs = _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b,
-                                      rows_b, cfm)
-    lam = projected_gauss_seidel(A, rhs, friction, iterations, num_single=L)
-    return V0 + einsum("bjv,v->bj", Y, lam)
+    if target.shape[0] > _CHAIN_ROWS:
+        _, V0, _, Y, _, A, rhs = _columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target,
+                                          owner_b, rows_b, cfm)
+        lam = projected_gauss_seidel(A, rhs, friction, iterations, num_single=L)
+        return V0 + einsum("bjv,v->bj", Y, lam)
+    # few rows: their Delassus matrix along their chains, and two one-column solves (the free velocities, then the
+    # velocities with the impulses) instead of a column per row; the derivative (_solve_rows_jvp) has the columns
+    M, Jp, Jc = _assembled(M, Jp, Jc)
+    B = M.shape[0]
+    factors = _factor(plan, M, Jp, Jc, C, scan_levels)
+    V0 = _substitute(plan, factors, p[..., None], Jp, Jc, b[..., None], scan_levels)[0]
+    A = _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b)
+    rhs = target - _rows_on(owner_a, rows_a, owner_b, rows_b, L, V0)[:, 0]
+    lam = projected_gauss_seidel(*_contact_problem(A, rhs, cfm), friction, iterations, num_single=L)
+    q = p[..., None] + _rows_from(B, owner_a, rows_a, owner_b, rows_b, L, lam[:, None])
+    return _substitute(plan, factors, q, Jp, Jc, b[..., None], scan_levels)[0][..., 0]
 
 
 def _zero(t) -> bool:

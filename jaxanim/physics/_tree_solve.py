@@ -99,7 +99,7 @@ def _tree_solve(plan: _TreePlan, M, p, Jp, Jc, b, C, scan_levels: bool = False):
         b: ``[joints, k, m]`` row targets; C: ``[joints, k]`` their compliance (``> 0`` on rows
             with ``J = 0``).
         scan_levels: run the depth levels as a ``lax.scan`` (one compiled body, levels padded to
-            the widest) instead of writing each level out: the same result to the bit, about half
+            the widest) instead of writing each level out: the same result to round-off, about half
             the compile time, ~1.4x the run time under ``vmap`` (dynamic gathers / scatters).
     """
     return _implicit(plan, scan_levels, M, p, Jp, Jc, b, C)
@@ -291,3 +291,68 @@ def _substitute(plan: _TreePlan, factors, p, Jp, Jc, b, scan_levels: bool):
     for js, f, yr in zip(plan.levels, reversed(levels), reversed(saved)):
         V, lam = _level_down(V, lam, js, plan.child[js], plan.parent[js], Jp[js], f, yr)
     return V, lam
+
+
+def _root_chains(plan: _TreePlan, num_bodies: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(chain [bodies + 1, D + 1], depth [bodies + 1])``: ``chain[b, d]`` the ancestor of body ``b`` at depth
+    ``d`` (``b`` itself at its own depth), the dummy body ``bodies`` past ``b``'s depth (and on the dummy's row,
+    whose depth is -2)."""
+    B = num_bodies
+    parent_of = np.full(B, -1)
+    parent_of[plan.child] = plan.parent
+    depth = np.zeros(B + 1, int)
+    for b in range(B):
+        a = b
+        while parent_of[a] >= 0:
+            a = parent_of[a]
+            depth[b] += 1
+    depth[B] = -2
+    chain = np.full((B + 1, depth.max() + 1), B)
+    for b in range(B):
+        a = b
+        for d in range(depth[b], -1, -1):
+            chain[b, d] = a
+            a = parent_of[a]
+    return chain, depth
+
+
+def _prod(a, b):
+    """``a @ b`` over leading axes as the sum of its rank-one terms whatever the sizes (:func:`_bmm` leaves some to
+    ``dot``): elementwise, so the same bits in every program (a batched ``dot`` took other paths, with other
+    round-off, in the scanned and the written-out solve)."""
+    return sum(a[..., :, q, None] * b[..., None, q, :] for q in range(a.shape[-1]))
+
+
+def _body_blocks(plan: _TreePlan, factors, num_bodies: int, scan_levels: bool):
+    """Per body, from :func:`_factor`: ``(D, T)`` each ``[bodies + 1, 6, 6]`` (a zero dummy body last).
+
+    For right-hand sides ``(z, 0)`` the leaves-to-roots pass of :func:`_substitute` carries the momentum that
+    reaches a body's parent from the body as ``T z`` (``T = -(X S^{-1} J_p)'`` of the body's joint, 0 at a root),
+    and ``z_1' H^{-1} z_2`` (``H^{-1}`` the velocities' block of the joint system's inverse) is the sum over the
+    bodies of ``p^_1' D p^_2`` for the momenta ``p^`` that reach them: ``D = M^^{-1} - X S^{-1} X'`` for a joint's
+    child (its block ``[[M^, J_c'], [J_c, -C]]`` of the symmetric system in ``mu = -lambda``) and ``M^^{-1}`` for a
+    free root."""
+    levels, (free_inv, world_f) = factors
+    B = num_bodies
+    dtype = (free_inv if free_inv is not None else world_f[0]).dtype
+    D = jnp.zeros((B + 1, 6, 6), dtype)
+    T = jnp.zeros((B + 1, 6, 6), dtype)
+
+    def put(D, T, c, Minv, X, Sinv, SinvJp=None):
+        XS = _prod(X, Sinv)
+        D = D.at[c].set(Minv - _prod(XS, jnp.swapaxes(X, -1, -2)))
+        if SinvJp is not None:
+            T = T.at[c].set(-jnp.swapaxes(_prod(X, SinvJp), -1, -2))
+        return D, T
+
+    if scan_levels and levels is not None:
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), levels)
+        D, T = put(D, T, plan.padded[1].reshape(-1), *flat)  # the padding's dummy joints write the dummy body
+    elif not scan_levels:
+        for js, f in zip(reversed(plan.levels), levels):
+            D, T = put(D, T, plan.child[js], *f)
+    if plan.free.size:
+        D = D.at[plan.free].set(free_inv)
+    if plan.world.size:
+        D, T = put(D, T, plan.child[plan.world], *world_f)
+    return D.at[B].set(0.0), T.at[B].set(0.0)

@@ -62,7 +62,7 @@ class FeedbackOptions(eqx.Module):
 
 
 def _linearize(character, reference, options, corrections, traj):
-    # the joint tree's depth levels in a scan (physics.make_model's scan_levels): the same values to the bit; under
+    # the joint tree's depth levels in a scan (physics.make_model's scan_levels): the same values to round-off; under
     # jacfwd the same run time (the substitutions are one column per tangent) and a program that traces and compiles
     # faster (the shipped walk, 9 frames: tracing 4.6 -> 1.4 s, XLA 8.0 -> 7.0 s, 43.6 ms per frame either way)
     model = dataclasses.replace(character.model, scan_levels=True)
