@@ -426,9 +426,13 @@ KERNELS: tuple[Kernel, ...] = (
            "point's update is a handful of kernels (its rows' product, divides, the write into the impulses), each "
            "on one chunk's 64 characters: the most frequent instructions above. They are not most of the time, "
            "though: measured with a single sweep the step is still well over the penalty step's time, and nearly "
-           "as much with two points as with eight, so most of the gap is a fixed cost of the contact path, the "
-           "contact rows' columns carried as extra right-hand sides through every level of the tree solve and "
-           "their Delassus product, kernels on [bodies, 6, rows] blocks run once a step. Wider chunks spread "
+           "as much with two points as with eight, so most of the gap is a fixed cost of the contact path. "
+           "Its 24 rows' Delassus matrix is formed along the rows' chains of ancestors "
+           "(`jaxanim/physics/_rows_solve.py`: the per-body blocks gathered for each point's chain, a product "
+           "per depth, then the rows' products at the shared bodies) and the velocities take two one-column "
+           "tree solves; carrying the rows as 24 more columns through every level of the tree solve cost more "
+           "(measured, in the bound's comment there). Each of these is a few small kernels on one chunk. Wider "
+           "chunks spread "
            "every kernel over more characters but stream the tree solve's blocks from memory (measured slower: "
            "the chunk constant's comment in `jaxanim/physics/_rollout.py`)."),
     Kernel(f"SAMCON search, {SEARCH_PROFILED_WINDOWS} window", "float64", 256,
