@@ -34,8 +34,7 @@ from jax.custom_derivatives import SymbolicZero
 from .._linalg import einsum
 from ._bodies import _bmm
 from ._contact import projected_gauss_seidel
-from ._tree_solve import (_body_blocks, _factor, _prod, _joints_from, _joints_on, _root_chains, _substitute,
-                          _tree_solve)
+from ._tree_solve import _body_blocks, _factor, _joints_from, _joints_on, _substitute, _tree_solve
 
 __all__ = ["solve_rows"]
 
@@ -99,7 +98,7 @@ def _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b
     chains share their body (their common ancestors). The first ``U - L`` rows are the contact points' triples
     (one body each): they are carried together, three columns on one chain."""
     D, T = _body_blocks(plan, factors, B, scan_levels)
-    chain, depth = _root_chains(plan, B)
+    chain, depth = plan.chains, plan.depth
     U = rows_a.shape[0]
     K = (U - L) // 3
     groups = []  # (owner [n], z_a [n, 6, c], z_b [n, 6, c]): the points' triples, then the single rows
@@ -115,13 +114,13 @@ def _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b
         Tg, phi, Phi = T[bodies], jnp.zeros_like(za), []
         for d in range(chain.shape[1] - 1, -1, -1):
             if Phi:  # from the body at depth d + 1 to its parent
-                phi = _prod(Tg[:, d + 1], phi)
+                phi = _bmm(Tg[:, d + 1], phi)
             phi = phi + jnp.where(du == d, za, 0.0)
             if zb is not None:
                 phi = phi + jnp.where(du == d + 1, zb, 0.0)
             Phi.append(phi)
         Phi = jnp.stack(Phi[::-1], axis=1)  # [n, depths, 6, c]
-        Psi = _prod(D[bodies], Phi)
+        Psi = _bmm(D[bodies], Phi)
         c = za.shape[-1]
         Phis.append(jnp.moveaxis(Phi, -1, 1).reshape(-1, *Phi.shape[1:3]))  # [n c, depths, 6]
         Psis.append(jnp.moveaxis(Psi, -1, 1).reshape(-1, *Psi.shape[1:3]))

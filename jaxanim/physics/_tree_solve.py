@@ -36,6 +36,10 @@ class _TreePlan(NamedTuple):
         padded: ``(joints, children, parents)`` each ``[D, width]``: ``levels`` padded to the
             widest with a dummy joint (index ``joints``) between dummy bodies (index ``bodies``),
             shallowest first, for :func:`_tree_solve_scan`.
+        chains: ``[bodies + 1, D + 1]``: ``chains[b, d]`` the ancestor of body ``b`` at depth ``d`` (``b`` itself
+            at its own depth; :func:`jaxanim._tree.ancestors`), the dummy body ``bodies`` past that depth and on
+            the dummy's own row.
+        depth: ``[bodies + 1]`` each body's depth (-2 for the dummy: no depth matches it).
     """
 
     levels: tuple[np.ndarray, ...]
@@ -44,6 +48,8 @@ class _TreePlan(NamedTuple):
     parent: np.ndarray
     child: np.ndarray
     padded: tuple[np.ndarray, np.ndarray, np.ndarray]
+    chains: np.ndarray
+    depth: np.ndarray
 
 
 @functools.lru_cache(maxsize=None)
@@ -69,7 +75,12 @@ def _plan(parent: tuple[int, ...], child: tuple[int, ...], num_bodies: int) -> _
     levels = tuple(row[row < Jn] for row in js)
     world = np.asarray([j for j, p in enumerate(parent) if p < 0], int)
     free = np.asarray([b for b in range(num_bodies) if b not in joint_of], int)
-    return _TreePlan(levels, world, free, parent_arr, child_arr, (js, child_pad[js], parent_pad[js]))
+    depth = np.append(np.asarray(_tree.depths(body_parent), int), -2)
+    chains = np.full((B + 1, max(depth.max(), 0) + 1), B)
+    for b in range(B):
+        chain = _tree.ancestors(body_parent, b)
+        chains[b, :len(chain)] = chain
+    return _TreePlan(levels, world, free, parent_arr, child_arr, (js, child_pad[js], parent_pad[js]), chains, depth)
 
 
 def _tree_solve(plan: _TreePlan, M, p, Jp, Jc, b, C, scan_levels: bool = False):
@@ -293,36 +304,6 @@ def _substitute(plan: _TreePlan, factors, p, Jp, Jc, b, scan_levels: bool):
     return V, lam
 
 
-def _root_chains(plan: _TreePlan, num_bodies: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(chain [bodies + 1, D + 1], depth [bodies + 1])``: ``chain[b, d]`` the ancestor of body ``b`` at depth
-    ``d`` (``b`` itself at its own depth), the dummy body ``bodies`` past ``b``'s depth (and on the dummy's row,
-    whose depth is -2)."""
-    B = num_bodies
-    parent_of = np.full(B, -1)
-    parent_of[plan.child] = plan.parent
-    depth = np.zeros(B + 1, int)
-    for b in range(B):
-        a = b
-        while parent_of[a] >= 0:
-            a = parent_of[a]
-            depth[b] += 1
-    depth[B] = -2
-    chain = np.full((B + 1, depth.max() + 1), B)
-    for b in range(B):
-        a = b
-        for d in range(depth[b], -1, -1):
-            chain[b, d] = a
-            a = parent_of[a]
-    return chain, depth
-
-
-def _prod(a, b):
-    """``a @ b`` over leading axes as the sum of its rank-one terms whatever the sizes (:func:`_bmm` leaves some to
-    ``dot``): elementwise, so the same bits in every program (a batched ``dot`` took other paths, with other
-    round-off, in the scanned and the written-out solve)."""
-    return sum(a[..., :, q, None] * b[..., None, q, :] for q in range(a.shape[-1]))
-
-
 def _body_blocks(plan: _TreePlan, factors, num_bodies: int, scan_levels: bool):
     """Per body, from :func:`_factor`: ``(D, T)`` each ``[bodies + 1, 6, 6]`` (a zero dummy body last).
 
@@ -339,10 +320,10 @@ def _body_blocks(plan: _TreePlan, factors, num_bodies: int, scan_levels: bool):
     T = jnp.zeros((B + 1, 6, 6), dtype)
 
     def put(D, T, c, Minv, X, Sinv, SinvJp=None):
-        XS = _prod(X, Sinv)
-        D = D.at[c].set(Minv - _prod(XS, jnp.swapaxes(X, -1, -2)))
+        XS = _bmm(X, Sinv)
+        D = D.at[c].set(Minv - _bmm(XS, jnp.swapaxes(X, -1, -2)))
         if SinvJp is not None:
-            T = T.at[c].set(-jnp.swapaxes(_prod(X, SinvJp), -1, -2))
+            T = T.at[c].set(-jnp.swapaxes(_bmm(X, SinvJp), -1, -2))
         return D, T
 
     if scan_levels and levels is not None:
