@@ -153,7 +153,7 @@ def test_a_cycle_of_joints_is_an_error():
 def test_scan_levels_gives_the_same_steps():
     """A branching tree (free root, two children, a grandchild on a limited hinge) stepped with the
     depth levels written out and in a lax.scan: the same states to round-off (the two programs' small
-    matrix-vector products may round differently: 1e-13 after the 60 steps)."""
+    matrix-vector products may round differently: 3e-13 after the 60 steps)."""
     bodies = rigid.make_bodies([("capsule", (0.05, 0.3))] * 4, names=("root", "a", "b", "c"))
     pos = np.array([[0.0, 1.0, 0.0], [0.4, 1.0, 0.0], [-0.4, 1.0, 0.0], [0.8, 1.0, 0.0]])
     q = rot.rotation_between(jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 0.0, 0.0]))
@@ -168,7 +168,7 @@ def test_scan_levels_gives_the_same_steps():
     runs = [physics.rollout(physics.make_model(bodies, J, scan_levels=flag), state, _DT, 60) for flag in (False, True)]
     for field in ("position", "orientation", "linear_velocity", "angular_velocity"):
         np.testing.assert_allclose(getattr(runs[0].trajectory, field), getattr(runs[1].trajectory, field),
-                                   rtol=1e-11, atol=1e-12)
+                                   rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("scan_levels", [False, True], ids=["levels-written-out", "levels-scanned"])
