@@ -119,8 +119,9 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
 
     Differentiated, it is ``fun`` itself, plainly vmapped: by default through a custom JVP (forward
     and reverse mode); ``reverse=True`` (static) through a custom VJP instead, for a ``fun`` that has
-    only a reverse-mode derivative (a checkpointed while loop): the backward pass is ``jax.vjp`` of
-    ``fun`` on the saved inputs (the forward run again), and forward mode is unavailable.
+    only a reverse-mode derivative (a checkpointed while loop): its forward pass is ``jax.vjp`` of
+    ``fun``, whose residuals the backward pass takes (``fun`` runs once, not in chunks; it used to run
+    in chunks and again in the backward pass), and forward mode is unavailable.
     """
     if not chunks:
         return fun(*args)
@@ -158,7 +159,11 @@ def lane_map(fun: Callable[..., Any], *args: Any, lanes: int = LANES, chunks: bo
     # custom_vmap has no derivative rule: differentiated, it is fun itself (plainly vmapped)
     if reverse:
         reversible = jax.custom_vjp(lambda *a: routed(*a))
-        reversible.defvjp(lambda *a: (routed(*a), a), lambda a, ct: jax.vjp(fun_of, *a)[1](ct))
+
+        def forward(*a):  # the plain call's own forward pass, whose residuals the backward pass uses
+            return jax.vjp(fun_of, *a)
+
+        reversible.defvjp(forward, lambda pullback, ct: pullback(ct))
         return reversible(*args, *consts)
     differentiable = eqx.filter_custom_jvp(lambda *a: routed(*a))
 
