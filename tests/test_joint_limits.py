@@ -326,7 +326,8 @@ def test_delassus_along_the_chains_equals_the_columns_through_the_tree_solve(sca
     def run():
         (factors, _, _), V0, _, Y, _, A, rhs = R._columns(plan, scan_levels, L, M, p, Jp, Jc, b, C, owner_a, rows_a,
                                                           target, owner_b, rows_b, cfm)
-        chains = R._delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b)
+        blocks = T._body_blocks(plan, factors, B, scan_levels)
+        chains = R._delassus(plan, (blocks[0], blocks[1], blocks[3]), B, L, owner_a, rows_a, owner_b, rows_b)[0]
         lam = projected_gauss_seidel(A, rhs, mu, 10, num_single=L)
         columns = V0 + jnp.einsum("bjv,v->bj", Y, lam)
         chained = R._solve(plan, scan_levels, 10, L, M, p, Jp, Jc, b, C, owner_a, rows_a, target, owner_b, rows_b,

@@ -6,8 +6,10 @@ one-sided rows' columns ``Y = H^{-1} J_u'`` as extra right-hand sides), forms th
 ``A = J_u Y`` and solves the contact problem on it by projected Gauss-Seidel. For a few rows (at most
 :data:`_CHAIN_ROWS`: a contact step's 8 points) it forms ``A`` without the columns: each row's momentum is carried
 from its body up its chain of ancestors by the elimination's per-body blocks, and ``A`` is the sum of their products
-at the bodies that two chains share (:func:`_delassus`; the same matrix to round-off); the velocities then take two
-one-column solves, before and after the impulses.
+at the bodies that two chains share (:func:`_delassus`; the same matrix to round-off). The contact right-hand side
+``J_u V_0`` comes from the same chains and the leaves-to-roots pass of ``(p, b)`` (each body's velocity were its parent
+at rest, summed along the chain), and the velocities from one roots-to-leaves pass after the impulses' momenta are
+carried up the chains: one pass each way where a solve before and one after the impulses took two each.
 
 Its derivative (:func:`_solve_rows_jvp`) needs no derivative of the ``U`` columns ``Y``. With ``S`` the joint
 system's solve (``K = [[M, -J_j'], [J_j, C]]``, so that ``K' = D K D`` with ``D = diag(I, -I)``), ``J_u S(z) =
@@ -34,7 +36,8 @@ from jax.custom_derivatives import SymbolicZero
 from .._linalg import einsum
 from ._bodies import _bmm
 from ._contact import projected_gauss_seidel
-from ._tree_solve import _body_blocks, _factor, _joints_from, _joints_on, _substitute, _tree_solve
+from ._tree_solve import (_body_blocks, _down, _factor, _joints_from, _joints_on, _pad, _substitute, _tree_solve,
+                          _up)
 
 __all__ = ["solve_rows"]
 
@@ -90,14 +93,16 @@ def _contact_problem(A, rhs, cfm):
     return 0.5 * (A + A.T) + cfm * jnp.eye(A.shape[0], dtype=A.dtype), rhs
 
 
-def _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b):
-    """``J_u H^{-1} J_u' [U, U]`` along the rows' bodies' ancestor chains (:func:`_body_blocks`), without a
-    right-hand side per row through the tree solve: row ``u``'s momentum ``z_u`` (``rows_a`` on ``owner_a``, and
-    for the last ``L`` rows ``rows_b`` on its parent ``owner_b``) carried from its body to the root by the ``T``
-    blocks, ``phi_u [depth]``, then ``A_uv = sum_d phi_u[d]' D phi_v[d]`` over the depths ``d`` where the two
-    chains share their body (their common ancestors). The first ``U - L`` rows are the contact points' triples
-    (one body each): they are carried together, three columns on one chain."""
-    D, T = _body_blocks(plan, factors, B, scan_levels)
+def _delassus(plan, blocks, B, L, owner_a, rows_a, owner_b, rows_b):
+    """``(A, Phi, slots, bodies)``: ``A = J_u H^{-1} J_u' [U, U]`` along the rows' bodies' ancestor chains
+    (``blocks``: ``(D, T, slot)`` of :func:`_body_blocks`), without a right-hand side per row through the tree solve:
+    row ``u``'s momentum ``z_u`` (``rows_a`` on ``owner_a``, and for the last ``L`` rows ``rows_b`` on its parent
+    ``owner_b``) carried from its body to the root by the ``T`` blocks, ``Phi [U, depths, 6]`` (zero past the row's
+    depth), then ``A_uv = sum_d Phi_u[d]' D Phi_v[d]`` over the depths ``d`` where the two chains share their body
+    (their common ancestors); ``slots`` and ``bodies`` ``[U, depths]`` the chains' rows of the blocks and their
+    bodies (``B`` past the row's depth). The first ``U - L`` rows are the contact points' triples (one body each):
+    they are carried together, three columns on one chain."""
+    D, T, slot = blocks
     chain, depth = plan.chains, plan.depth
     U = rows_a.shape[0]
     K = (U - L) // 3
@@ -107,11 +112,12 @@ def _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b
         groups.append((owner_a[:3 * K:3], za, None))
     if L:
         groups.append((owner_a[3 * K:], rows_a[3 * K:, :, None], rows_b[:, :, None]))
-    Phis, Psis, row_bodies = [], [], []
+    Phis, Psis, row_slots, row_bodies = [], [], [], []
     for owner, za, zb in groups:
         bodies = jnp.asarray(chain)[owner]  # [n, depths]
+        slots = jnp.asarray(slot[chain])[owner]  # their rows of D and T
         du = jnp.asarray(depth)[owner][:, None, None]
-        Tg, phi, Phi = T[bodies], jnp.zeros_like(za), []
+        Tg, phi, Phi = T[slots], jnp.zeros_like(za), []
         for d in range(chain.shape[1] - 1, -1, -1):
             if Phi:  # from the body at depth d + 1 to its parent
                 phi = _bmm(Tg[:, d + 1], phi)
@@ -120,15 +126,16 @@ def _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b
                 phi = phi + jnp.where(du == d + 1, zb, 0.0)
             Phi.append(phi)
         Phi = jnp.stack(Phi[::-1], axis=1)  # [n, depths, 6, c]
-        Psi = _bmm(D[bodies], Phi)
+        Psi = _bmm(D[slots], Phi)
         c = za.shape[-1]
         Phis.append(jnp.moveaxis(Phi, -1, 1).reshape(-1, *Phi.shape[1:3]))  # [n c, depths, 6]
         Psis.append(jnp.moveaxis(Psi, -1, 1).reshape(-1, *Psi.shape[1:3]))
+        row_slots.append(jnp.repeat(slots, c, axis=0))
         row_bodies.append(jnp.repeat(bodies, c, axis=0))
     cat = lambda xs: xs[0] if len(xs) == 1 else jnp.concatenate(xs)  # noqa: E731
-    Phi, Psi, bodies = cat(Phis), cat(Psis), cat(row_bodies)
+    Phi, Psi, slots, bodies = cat(Phis), cat(Psis), cat(row_slots), cat(row_bodies)
     shared = (bodies[:, None, :] == bodies[None, :, :]) & (bodies != B)[:, None, :]
-    return einsum("udi,vdi,uvd->uv", Phi, Psi, shared.astype(Phi.dtype))
+    return einsum("udi,vdi,uvd->uv", Phi, Psi, shared.astype(Phi.dtype)), Phi, slots, bodies
 
 
 #: The most one-sided rows whose Delassus matrix :func:`_solve` forms along their chains (:func:`_delassus`); more
@@ -146,17 +153,27 @@ def _solve(plan, scan_levels, iterations, L, M, p, Jp, Jc, b, C, owner_a, rows_a
                                           owner_b, rows_b, cfm)
         lam = projected_gauss_seidel(A, rhs, friction, iterations, num_single=L)
         return V0 + einsum("bjv,v->bj", Y, lam)
-    # few rows: their Delassus matrix along their chains, and two one-column solves (the free velocities, then the
-    # velocities with the impulses) instead of a column per row; the derivative (_solve_rows_jvp) has the columns
+    # few rows: their Delassus matrix and right-hand side along their chains, then one roots-to-leaves pass with
+    # the impulses' momenta carried up the same chains, instead of a column per row (the derivative,
+    # _solve_rows_jvp, has the columns)
     M, Jp, Jc = _assembled(M, Jp, Jc)
     B = M.shape[0]
     factors = _factor(plan, M, Jp, Jc, C, scan_levels)
-    V0 = _substitute(plan, factors, p[..., None], Jp, Jc, b[..., None], scan_levels)[0]
-    A = _delassus(plan, factors, scan_levels, B, L, owner_a, rows_a, owner_b, rows_b)
-    rhs = target - _rows_on(owner_a, rows_a, owner_b, rows_b, L, V0)[:, 0]
+    p, b = p[..., None], b[..., None]
+    if scan_levels:
+        p, Jp, Jc, b = _pad(p, 0.0), _pad(Jp, 0.0), _pad(Jc, 0.0), _pad(b, 0.0)
+    phat, saved = _up(plan, factors, p, Jc, b, scan_levels)
+    D, T, w, slot = _body_blocks(plan, factors, B, scan_levels, (phat, saved, Jc, b))
+    A, Phi, slots, bodies = _delassus(plan, (D, T, slot), B, L, owner_a, rows_a, owner_b, rows_b)
+    rhs = target - einsum("udi,udi->u", Phi, w[slots][..., 0])  # J_u V0 = sum_d Phi[d]' w along the chain
     lam = projected_gauss_seidel(*_contact_problem(A, rhs, cfm), friction, iterations, num_single=L)
-    q = p[..., None] + _rows_from(B, owner_a, rows_a, owner_b, rows_b, L, lam[:, None])
-    return _substitute(plan, factors, q, Jp, Jc, b[..., None], scan_levels)[0][..., 0]
+    # the leaves-to-roots pass of (p + J_u' lam, b): phat plus each row's momentum where its chain carries it (Phi
+    # is zero past a row's depth, where its chain names the dummy body B: an extra row here, the padding's with
+    # scan_levels)
+    n = phat.shape[0]
+    ext = phat if scan_levels else jnp.concatenate([phat, jnp.zeros_like(phat[:1])])
+    phat = ext.at[bodies].add((lam[:, None, None] * Phi)[..., None])[:n]
+    return _down(plan, factors, phat, Jp, Jc, b, None, scan_levels)[0][:B, :, 0]
 
 
 def _zero(t) -> bool:

@@ -272,68 +272,116 @@ def _factor(plan: _TreePlan, M, Jp, Jc, C, scan_levels: bool):
 
 def _substitute(plan: _TreePlan, factors, p, Jp, Jc, b, scan_levels: bool):
     """``(V [bodies, 6, m], lambda [joints, k, m])`` for the right-hand sides ``p, b`` through the
-    factors of :func:`_factor`."""
-    levels, roots = factors
+    factors of :func:`_factor`: the leaves-to-roots pass (:func:`_up`), then the roots-to-leaves pass
+    (:func:`_down`)."""
     B, J = p.shape[0], b.shape[0]
     if scan_levels:
         p, Jp, Jc, b = _pad(p, 0.0), _pad(Jp, 0.0), _pad(Jc, 0.0), _pad(b, 0.0)
-        lam = jnp.zeros_like(b)
+    phat, saved = _up(plan, factors, p, Jc, b, scan_levels)
+    V, lam = _down(plan, factors, phat, Jp, Jc, b, saved, scan_levels)
+    return V[:B], lam[:J]
+
+
+def _up(plan: _TreePlan, factors, p, Jc, b, scan_levels: bool):
+    """The leaves-to-roots pass of :func:`_substitute` (with ``scan_levels``, ``p``, ``Jc``, ``b`` padded by
+    :func:`_pad`): ``(phat, saved)``, each body's momentum with its descendants' folded in, and each level's ``(y, r)``
+    (:func:`_joint_up`), stacked over the padded levels with ``scan_levels``."""
+    levels, _ = factors
+    if scan_levels:
         if levels is None:
-            V, lam = _roots(plan, roots, p, Jc, b, lam)
-            return V[:B], lam[:J]
+            return p, None
 
         def up(phat, x):
             (js, c, pa), f = x
             return _level_up(phat, c, pa, Jc[js], b[js], f)
 
-        phat, saved = jax.lax.scan(up, p, (plan.padded, levels), reverse=True)
-
-        def down(carry, x):
-            (js, c, pa), f, yr = x
-            return _level_down(*carry, js, c, pa, Jp[js], f, yr), None
-
-        (V, lam), _ = jax.lax.scan(down, _roots(plan, roots, phat, Jc, b, lam), (plan.padded, levels, saved))
-        return V[:B], lam[:J]
+        return jax.lax.scan(up, p, (plan.padded, levels), reverse=True)
     phat, saved = p, []
     for js, f in zip(reversed(plan.levels), levels):
         phat, yr = _level_up(phat, plan.child[js], plan.parent[js], Jc[js], b[js], f)
         saved.append(yr)
+    return phat, saved
+
+
+def _down(plan: _TreePlan, factors, phat, Jp, Jc, b, saved, scan_levels: bool):
+    """The roots-to-leaves pass of :func:`_substitute`: ``(V, lambda)`` from the momenta ``phat`` of :func:`_up`
+    (padded with ``scan_levels``), with each level's ``(y, r)`` from ``saved``, or computed from ``phat`` where
+    ``saved`` is ``None``."""
+    levels, roots = factors
+
+    def yr_of(c, js, f):
+        return _joint_up(phat[c], Jc[js], b[js], f[0])
+
     V, lam = _roots(plan, roots, phat, Jc, b, jnp.zeros_like(b))
+    if scan_levels:
+        if levels is None:
+            return V, lam
+
+        def down(carry, x):
+            (js, c, pa), f, yr = x
+            yr = yr_of(c, js, f) if saved is None else yr
+            return _level_down(*carry, js, c, pa, Jp[js], f, yr), None
+
+        stacked = levels if saved is None else saved  # a stand-in of the same length where nothing is saved
+        return jax.lax.scan(down, (V, lam), (plan.padded, levels, stacked))[0]
+    saved = [None] * len(levels) if saved is None else saved
     for js, f, yr in zip(plan.levels, reversed(levels), reversed(saved)):
-        V, lam = _level_down(V, lam, js, plan.child[js], plan.parent[js], Jp[js], f, yr)
+        c = plan.child[js]
+        V, lam = _level_down(V, lam, js, c, plan.parent[js], Jp[js], f, yr_of(c, js, f) if yr is None else yr)
     return V, lam
 
 
-def _body_blocks(plan: _TreePlan, factors, num_bodies: int, scan_levels: bool):
-    """Per body, from :func:`_factor`: ``(D, T)`` each ``[bodies + 1, 6, 6]`` (a zero dummy body last).
+def _body_blocks(plan: _TreePlan, factors, num_bodies: int, scan_levels: bool, up=None):
+    """Per body, from :func:`_factor`: ``(D, T, w, slot)``, ``D`` and ``T`` ``[n + 1, 6, 6]`` stacked in the
+    factors' order (a zero block last) and ``slot [bodies + 1]`` (numpy) the row of each body's blocks (the dummy
+    body ``bodies``: the zero block): the level factors' blocks side by side, without writing each level into
+    arrays in body order.
 
     For right-hand sides ``(z, 0)`` the leaves-to-roots pass of :func:`_substitute` carries the momentum that
     reaches a body's parent from the body as ``T z`` (``T = -(X S^{-1} J_p)'`` of the body's joint, 0 at a root),
     and ``z_1' H^{-1} z_2`` (``H^{-1}`` the velocities' block of the joint system's inverse) is the sum over the
     bodies of ``p^_1' D p^_2`` for the momenta ``p^`` that reach them: ``D = M^^{-1} - X S^{-1} X'`` for a joint's
     child (its block ``[[M^, J_c'], [J_c, -C]]`` of the symmetric system in ``mu = -lambda``) and ``M^^{-1}`` for a
-    free root."""
+    free root.
+
+    With ``up = (phat, saved, Jc, b)`` of :func:`_up` (padded with ``scan_levels``), ``w [n + 1, 6, m]`` in the
+    same rows: each body's velocity were its parent at rest, ``y + X S^{-1} r`` of its joint (:func:`_joint_up`;
+    ``M^^{-1} p^`` for a free root), so that the roots-to-leaves pass gives ``V = w + T' V_parent`` and
+    ``z' V = sum_d phi[d]' w`` over the body's chain for ``phi`` its momentum ``z`` carried up by the ``T`` blocks;
+    ``None`` without ``up``."""
     levels, (free_inv, world_f) = factors
-    B = num_bodies
-    dtype = (free_inv if free_inv is not None else world_f[0]).dtype
-    D = jnp.zeros((B + 1, 6, 6), dtype)
-    T = jnp.zeros((B + 1, 6, 6), dtype)
+    phat, saved, Jc, b = up if up is not None else (None,) * 4
+    Ds, Ts, Ws, owners = [], [], [], []
 
-    def put(D, T, c, Minv, X, Sinv, SinvJp=None):
+    def put(c, f, yr=None):
+        Minv, X, Sinv, *rest = f
         XS = _bmm(X, Sinv)
-        D = D.at[c].set(Minv - _bmm(XS, jnp.swapaxes(X, -1, -2)))
-        if SinvJp is not None:
-            T = T.at[c].set(-jnp.swapaxes(_bmm(X, SinvJp), -1, -2))
-        return D, T
+        Ds.append(Minv - _bmm(XS, jnp.swapaxes(X, -1, -2)))
+        Ts.append(-jnp.swapaxes(_bmm(X, rest[0]), -1, -2) if rest else jnp.zeros_like(Minv))
+        if yr is not None:
+            y, r = yr
+            Ws.append(y + _bmm(XS, r))
+        owners.append(np.asarray(c).reshape(-1))
 
+    flat = lambda x: jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), x)  # noqa: E731
     if scan_levels and levels is not None:
-        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), levels)
-        D, T = put(D, T, plan.padded[1].reshape(-1), *flat)  # the padding's dummy joints write the dummy body
+        put(plan.padded[1], flat(levels), None if up is None else flat(saved))  # the padding's rows: no body's slot
     elif not scan_levels:
-        for js, f in zip(reversed(plan.levels), levels):
-            D, T = put(D, T, plan.child[js], *f)
+        for i, (js, f) in enumerate(zip(reversed(plan.levels), levels)):
+            put(plan.child[js], f, None if up is None else saved[i])
     if plan.free.size:
-        D = D.at[plan.free].set(free_inv)
+        Ds.append(free_inv)
+        Ts.append(jnp.zeros_like(free_inv))
+        if up is not None:
+            Ws.append(_bmm(free_inv, phat[plan.free]))
+        owners.append(plan.free)
     if plan.world.size:
-        D, T = put(D, T, plan.child[plan.world], *world_f)
-    return D.at[B].set(0.0), T.at[B].set(0.0)
+        c = plan.child[plan.world]
+        put(c, world_f, None if up is None else _joint_up(phat[c], Jc[plan.world], b[plan.world], world_f[0]))
+    owner = np.concatenate(owners)
+    slot = np.full(num_bodies + 1, owner.size)
+    real = owner < num_bodies
+    slot[owner[real]] = np.flatnonzero(real)
+    zero = jnp.zeros((1, 6, 6), Ds[0].dtype)
+    w = None if up is None else jnp.concatenate(Ws + [jnp.zeros((1,) + Ws[0].shape[1:], Ws[0].dtype)])
+    return jnp.concatenate(Ds + [zero]), jnp.concatenate(Ts + [zero]), w, slot
