@@ -429,9 +429,10 @@ KERNELS: tuple[Kernel, ...] = (
            "as much with two points as with eight, so most of the gap is a fixed cost of the contact path. "
            "Its 24 rows' Delassus matrix is formed along the rows' chains of ancestors "
            "(`jaxanim/physics/_rows_solve.py`: the per-body blocks gathered for each point's chain, a product "
-           "per depth, then the rows' products at the shared bodies) and the velocities take two one-column "
-           "tree solves; carrying the rows as 24 more columns through every level of the tree solve cost more "
-           "(measured, in the bound's comment there). Each of these is a few small kernels on one chunk. Wider "
+           "per depth, then the rows' products at the shared bodies), their right-hand side is summed along the "
+           "same chains after one leaves-to-roots pass, and the velocities take one roots-to-leaves pass with the "
+           "impulses carried up the chains; carrying the rows as 24 more columns through every level of the tree "
+           "solve cost more (measured, in the bound's comment there). Each of these is a few small kernels on one chunk. Wider "
            "chunks spread "
            "every kernel over more characters but stream the tree solve's blocks from memory (measured slower: "
            "the chunk constant's comment in `jaxanim/physics/_rollout.py`)."),
