@@ -432,8 +432,8 @@ KERNELS: tuple[Kernel, ...] = (
            "per depth, then the rows' products at the shared bodies), their right-hand side is summed along the "
            "same chains after one leaves-to-roots pass, and the velocities take one roots-to-leaves pass with the "
            "impulses carried up the chains; carrying the rows as 24 more columns through every level of the tree "
-           "solve cost more (measured, in the bound's comment there). Each of these is a few small kernels on one chunk. Wider "
-           "chunks spread "
+           "solve cost more (measured, in the bound's comment there). Each of these is a few small kernels on "
+           "one chunk. Wider chunks spread "
            "every kernel over more characters but stream the tree solve's blocks from memory (measured slower: "
            "the chunk constant's comment in `jaxanim/physics/_rollout.py`)."),
     Kernel(f"SAMCON search, {SEARCH_PROFILED_WINDOWS} window", "float64", 256,
