@@ -318,12 +318,11 @@ def _down(plan: _TreePlan, factors, phat, Jp, Jc, b, saved, scan_levels: bool):
             return V, lam
 
         def down(carry, x):
-            (js, c, pa), f, yr = x
-            yr = yr_of(c, js, f) if saved is None else yr
-            return _level_down(*carry, js, c, pa, Jp[js], f, yr), None
+            (js, c, pa), f, *yr = x
+            return _level_down(*carry, js, c, pa, Jp[js], f, yr[0] if yr else yr_of(c, js, f)), None
 
-        stacked = levels if saved is None else saved  # a stand-in of the same length where nothing is saved
-        return jax.lax.scan(down, (V, lam), (plan.padded, levels, stacked))[0]
+        xs = (plan.padded, levels) if saved is None else (plan.padded, levels, saved)
+        return jax.lax.scan(down, (V, lam), xs)[0]
     saved = [None] * len(levels) if saved is None else saved
     for js, f, yr in zip(plan.levels, reversed(levels), reversed(saved)):
         c = plan.child[js]
