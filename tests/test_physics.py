@@ -197,3 +197,27 @@ def test_bad_input():
             physics.step(model, state, dt)
         with pytest.raises(JaxanimError, match="dt: expected a positive finite number of seconds"):
             physics.rollout(model, state, dt, 10)
+
+
+def test_the_simulators_compiler_option_gives_the_same_steps(monkeypatch):
+    """jaxanim._compile: the classic XLA:CPU emitters that the simulator's own programs are compiled with (unless
+    XLA_FLAGS names the flag) step the double pendulum as XLA's default emitters do, to round-off."""
+    from jaxanim import _linalg as _compile
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
+    assert _compile._options() == {}
+    monkeypatch.delenv("XLA_FLAGS")
+    if tuple(jax.__version_info__[:2]) == (0, 10):
+        assert _compile._options() == {_compile._FLAG: False}
+    model, state = _double_pendulum()
+
+    def compiled(emitters: bool):
+        roll = jax.jit(lambda s: physics.rollout(model, s, 1 / 600, 200).final,
+                       compiler_options={_compile._FLAG: emitters})
+        return roll.lower(state).compile()
+
+    programs = compiled(False), compiled(True)
+    assert programs[0].as_text() != programs[1].as_text(), "the option did not reach the compiler"
+    classic, default = (c(state) for c in programs)
+    for name in ("position", "orientation", "linear_velocity", "angular_velocity"):
+        np.testing.assert_allclose(getattr(classic, name), getattr(default, name), rtol=0, atol=1e-12, err_msg=name)

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._linalg import COMPILER_OPTIONS
 from .._errors import JaxanimError
 from ..skeleton._bvh import write_bvh
 from ..skeleton._skeleton import Motion
@@ -134,7 +135,7 @@ def _simulate(clip: _Clip, args: argparse.Namespace, plan: _SimPlan, ui: _UI) ->
     call_args = (state0, gains, reference)
     ui.progress(f"compiling the rollout: {plan.steps} steps of {_ms(plan.dt)}, recording every {plan.k}")
     t0 = time.perf_counter()
-    compiled = jax.jit(simulate).lower(*call_args).compile()
+    compiled = jax.jit(simulate, compiler_options=COMPILER_OPTIONS or None).lower(*call_args).compile()
     compile_seconds = time.perf_counter() - t0
     ui.progress(f"simulating {_num(plan.steps * plan.dt)} s")
     t0 = time.perf_counter()

@@ -14,6 +14,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 import solvers
 
+from .._linalg import jit
 from .._errors import JaxanimError
 from ._bodies import BodyState
 from ._model import PhysicsModel
@@ -68,7 +69,7 @@ def _finite_state(s: BodyState) -> Array:
 ROLLOUT_LANES = 64
 
 
-@eqx.filter_jit
+@jit
 def _rollout(model, state, h, num_steps, record_every, controller, controller_args, max_speed, max_angular_speed):
     def run(state, h, controller_args, max_speed, max_angular_speed):
         def inner(carry, _):

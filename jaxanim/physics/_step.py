@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,6 +17,7 @@ from jaxtyping import Array, ArrayLike, Float
 import solvers
 
 from .. import rotations as rot
+from .._linalg import jit
 from .._errors import JaxanimError
 from ._bodies import BodyState, _check_loads, _free_velocities, _integrate
 from ._contact import contact_rows, penalty_loads
@@ -285,7 +285,7 @@ def control_for(model: PhysicsModel, control=None, **keywords) -> Control:
     return _as_control(model.bodies.num_bodies, model.joints.num_joints, model.bodies.mass.dtype, control, **keywords)
 
 
-@eqx.filter_jit
+@jit
 def _step_jit(model, state, control, h):
     return _step(model, state, control, h)
 
@@ -354,7 +354,7 @@ def _check_dt(dt) -> None:
         raise JaxanimError(f"dt: expected a positive finite number of seconds, got {dt!r}")
 
 
-@eqx.filter_jit
+@jit
 def _spd_torques_jit(model, state, control, h):
     return step_and_torques(model, state, control, h)[1]
 

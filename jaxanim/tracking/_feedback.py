@@ -30,6 +30,7 @@ from jaxtyping import Array, Float
 import solvers
 
 from .. import rotations as rot
+from .._linalg import jit
 from .._errors import JaxanimError, check_shape
 from ..character._build import Character
 from ._samcon import (
@@ -88,7 +89,7 @@ def _linearize(character, reference, options, corrections, traj):
     return jax.lax.map(one, jnp.arange(frames - 1))
 
 
-_linearize_jit = eqx.filter_jit(_linearize)
+_linearize_jit = jit(_linearize)
 
 
 def linearize(character: Character, reference: TrackingReference, result: TrackingResult):
@@ -101,7 +102,7 @@ def linearize(character: Character, reference: TrackingReference, result: Tracki
     return _linearize_jit(character, reference, options, result.corrections, result.trajectory)
 
 
-@eqx.filter_jit
+@jit
 def _gains(A, B, options: FeedbackOptions) -> Feedback:
     T, n, m = B.shape
     dtype = A.dtype

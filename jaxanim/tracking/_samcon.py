@@ -43,6 +43,7 @@ from jaxtyping import Array, Bool, Float
 from solvers import RESULTS
 
 from .. import rotations as rot
+from .._linalg import jit
 from .._errors import JaxanimError, check_positive
 from .._linalg import dot, matmul
 from ..character._build import Character, clip_targets, root_body
@@ -541,7 +542,7 @@ def _report(window, windows) -> None:
         _PROGRESS[-1](int(window), int(windows))
 
 
-@eqx.filter_jit
+@jit
 def _samcon(character, reference, key, options: TrackingOptions, windows: int):
     window, _, start_state, frame_cost, errors, fell, nj = _problem(character, reference, options)
     N, K, W = options.samples, options.elites, options.window
@@ -657,7 +658,7 @@ def replay(
     return eqx.tree_at(lambda r: r.feedback, replayed, law, is_leaf=lambda x: x is None)
 
 
-_replay_jit = eqx.filter_jit(_replay)
+_replay_jit = jit(_replay)
 
 
 def _check_push(push, num_bodies: int):
