@@ -1,29 +1,31 @@
-"""The library's stated numerics on every backend: matrix products at a stated precision (the library's
-default: ``lax.Precision.HIGHEST``), and the XLA:CPU options of the simulator's and the tracker's programs.
+"""The library's stated numerics on every backend: matrix products at a stated precision (the library's default:
+``lax.Precision.HIGHEST``), and the XLA:CPU options of the simulator's, the tracker's and the retargeting's
+programs.
 
-Without a stated precision an NVIDIA GPU runs a float32 ``dot`` in TF32 (about 10 bits of
-mantissa); every product in jaxanim goes through these, or states ``precision=`` itself. They are
-the solvers package's (``solvers._linalg``), so the two packages share one default. The kernels
-where a user may want the fast path (skinning, the motion-matching search) take a ``precision``
-option, checked by :func:`check_precision`.
+Without a stated precision an NVIDIA GPU runs a float32 ``dot`` in TF32 (about 10 bits of mantissa); every
+product in jaxanim goes through these, or states ``precision=`` itself. They are the solvers package's
+(``solvers._linalg``), so the two packages share one default. The kernels where a user may want the fast path
+(skinning, the motion-matching search) take a ``precision`` option, checked by :func:`check_precision`.
 
-**Compiler options** (:func:`jit`, the physics step and rollout, the tracking search, replay, linearization and
-gains). jaxlib 0.10's XLA:CPU generates its fused loops with the MLIR "fusion emitters" by default. For the
-simulator's programs, hundreds of small fusions of ``[batch, 6, 6]`` blocks, the classic emitters
-(``xla_cpu_use_fusion_emitters=False``) build them in about two thirds of the time, and the programs
-run as fast or faster. Measured on the 2-core CPU, alternating processes, emitters on / off: the
-tracking search of the shipped walk (64 samples, 20 windows) compiles in 14.3-14.4 / 10.5-10.8 s and
-runs in the same time; its linearization (``tracking.linearize``) compiles in 6.8-7.2 / 3.7-4.0 s (the
-same Jacobians to the bit) and the LQR gains on it in 0.9-1.0 / 0.6 s; a batched rollout of 1,024
-characters, complementarity on 8 points, in 6.6 / 5.2 s, running 46-47 / 44-45 us per character-step
-(penalty contact: 5.5 / 3.8 s, 22 / 18-20 us). Not every program gains: the batched doubling of
-``solvers.dare`` ran 18 % slower, so the option is these programs', not the process's, and ``solvers``
-keeps XLA's defaults.
+**Compiler options** (:func:`jit`: the physics step and rollout, the tracking search, replay, linearization
+and gains, the robots' retargeting solve). jaxlib 0.10's XLA:CPU generates its fused loops with the MLIR
+"fusion emitters" by default. For these programs, hundreds of small fusions of ``[batch, 6, 6]`` blocks, the
+classic emitters (``xla_cpu_use_fusion_emitters=False``) build them in about two thirds of the time, and the
+programs run as fast or faster. Measured on the 2-core CPU, alternating processes, emitters on / off: the
+tracking search of the shipped walk (64 samples, 20 windows) compiles in 14.3-14.4 / 10.5-10.8 s and runs in
+the same time; its linearization (``tracking.linearize``) compiles in 6.8-7.2 / 3.7-4.0 s (the same Jacobians
+to the bit) and the LQR gains on it in 0.9-1.0 / 0.6 s; a batched rollout of 1,024 characters, complementarity
+on 8 points, in 6.6 / 5.2 s, running 46-47 / 44-45 us per character-step (penalty contact: 5.5 / 3.8 s, 22 /
+18-20 us); the whole-clip retargeting solve of four 120-frame clips onto the G1 in 9.6-10.7 / 7.5-7.6 s,
+running 179-300 / 162-271 ms, the same joint angles to the bit. Not every program gains: the batched doubling
+of ``solvers.dare`` ran 18 % slower, and a batch of 1,024 IK solves (Levenberg-Marquardt on the CMU skeleton)
+compiled in 3.2-3.4 s instead of 4.7-4.9 but ran 5 % slower, so the option is these programs', not the
+process's: ``solvers`` and the IK keep XLA's defaults.
 
-The option reaches only programs whose top level is one of these entry points: a caller's own
-``jax.jit`` around them compiles with the caller's options (``XLA_FLAGS`` sets them for a whole
-process). It is passed only on the jaxlib versions it was measured on, and not where ``XLA_FLAGS``
-already names it, so a user's own setting wins.
+The option reaches only programs whose top level is one of these entry points: a caller's own ``jax.jit``
+around them compiles with the caller's options (``XLA_FLAGS`` sets them for a whole process, ``jax.jit(...,
+compiler_options=COMPILER_OPTIONS)`` for one program). It is passed only on the jaxlib versions it was
+measured on, and not where ``XLA_FLAGS`` already names it, so a user's own setting wins.
 """
 
 import os

@@ -50,7 +50,7 @@ import solvers
 
 from .. import rotations as rot
 from .._errors import JaxanimError
-from .._linalg import einsum
+from .._linalg import einsum, jit
 from .._types import Array, Float
 from ._kinematics import _dof_columns, _kinematics, _mm, _surface, _target_frames
 from ._retarget_diagnostics import RetargetDiagnostics, diagnostics
@@ -396,7 +396,7 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
     return q, lin[0], converged, k
 
 
-@eqx.filter_jit
+@jit
 def _solve(robot: Robot, prob: RetargetProblem, opts: RetargetOptions):
     dtype = prob.positions.dtype
     lay = _Layout(robot)
