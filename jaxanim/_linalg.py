@@ -22,17 +22,21 @@ of ``solvers.dare`` ran 18 % slower, and a batch of 1,024 IK solves (Levenberg-M
 compiled in 3.2-3.4 s instead of 4.7-4.9 but ran 5 % slower, so the option is these programs', not the
 process's: ``solvers`` and the IK keep XLA's defaults.
 
-The option reaches only programs whose top level is one of these entry points: a caller's own ``jax.jit``
-around them compiles with the caller's options (``XLA_FLAGS`` sets them for a whole process, ``jax.jit(...,
-compiler_options=COMPILER_OPTIONS)`` for one program). It is passed only on the jaxlib versions it was
-measured on, and not where ``XLA_FLAGS`` already names it, so a user's own setting wins.
+The option reaches only programs whose top level is one of these entry points, called directly or under an
+eager ``jax.vmap`` or ``jax.jvp`` (so a batch and a loop of calls compile alike). Called under a caller's own
+``jax.jit`` or ``grad``, they take the plain jit, whose program compiles with the caller's options
+(``XLA_FLAGS`` sets them for a whole process, ``jax.jit(..., compiler_options=COMPILER_OPTIONS)`` for one
+program). It is passed only on the jaxlib versions it was measured on, and not where ``XLA_FLAGS`` already
+names it, so a user's own setting wins.
 """
 
+import functools
 import os
 
 import equinox as eqx
 import jax
 from jax import lax
+from jax._src import core as jax_core
 
 from solvers._linalg import HIGHEST as HIGHEST, dot as dot, einsum as einsum, matmul as matmul
 
@@ -73,8 +77,43 @@ def _options() -> dict:
 COMPILER_OPTIONS = _options()
 
 
+#: The traces under which a jit's call still compiles as a top-level program (eager evaluation, and ``jax.vmap`` or
+#: ``jax.jvp`` applied eagerly, which batch or differentiate the jit's own program); under any other (a caller's
+#: ``jax.jit``, ``grad``, ``eval_shape``) its program is part of the caller's, where compiler options are an error.
+_EAGER_TRACES = ("EvalTrace", "BatchTrace", "JVPTrace")
+
+
+def _top_level() -> bool:
+    """A jit called now compiles a program of its own, with its own compiler options (jax internals: where they
+    are not as expected, the answer is no, and the plain jit runs)."""
+    trace = getattr(getattr(jax_core, "trace_ctx", None), "trace", None)
+    if trace is None:
+        return False
+    while trace is not None:
+        if type(trace).__name__ not in _EAGER_TRACES:
+            return False
+        trace = getattr(trace, "parent_trace", None)
+    return True
+
+
+def _jit_with(options: dict, fun, **kwargs):
+    """``eqx.filter_jit(fun)`` whose top-level calls (:func:`_top_level`) compile with ``options``; calls under a
+    caller's ``jax.jit`` or ``grad`` take the plain one, whose program becomes part of the caller's."""
+    plain = eqx.filter_jit(fun, **kwargs)
+    if not options:
+        return plain
+    top = eqx.filter_jit(fun, compiler_options=options, **kwargs)
+
+    @functools.wraps(fun)
+    def call(*args, **kw):
+        return (top if _top_level() else plain)(*args, **kw)
+
+    call.lower = lambda *args, **kw: (top if _top_level() else plain).lower(*args, **kw)
+    return call
+
+
 def jit(fun=None, **kwargs):
-    """``eqx.filter_jit`` with :data:`COMPILER_OPTIONS` (usable as a decorator)."""
+    """``eqx.filter_jit`` with :data:`COMPILER_OPTIONS` for its top-level calls (usable as a decorator)."""
     if fun is None:
         return lambda f: jit(f, **kwargs)
-    return eqx.filter_jit(fun, compiler_options=COMPILER_OPTIONS or None, **kwargs)
+    return _jit_with(COMPILER_OPTIONS, fun, **kwargs)

@@ -199,25 +199,41 @@ def test_bad_input():
             physics.rollout(model, state, dt, 10)
 
 
-def test_the_simulators_compiler_option_gives_the_same_steps(monkeypatch):
-    """jaxanim._compile: the classic XLA:CPU emitters that the simulator's own programs are compiled with (unless
-    XLA_FLAGS names the flag) step the double pendulum as XLA's default emitters do, to round-off."""
-    from jaxanim import _linalg as _compile
+def test_the_simulators_compiler_option_gives_the_same_steps_under_every_transformation(monkeypatch):
+    """jaxanim._linalg.jit: the simulator's entry points compile with the classic XLA:CPU emitters (unless XLA_FLAGS
+    names the flag, as this suite's does) where they are the program's top level, directly or under an eager vmap
+    or jvp, and as plain jits under a caller's jax.jit or grad (which reject compiler options on a nested jit).
+    A step of the double pendulum is the one of XLA's default emitters, to round-off, in every case."""
+    from jaxanim import _linalg
 
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
-    assert _compile._options() == {}
+    assert _linalg._options() == {}
     monkeypatch.delenv("XLA_FLAGS")
     if tuple(jax.__version_info__[:2]) == (0, 10):
-        assert _compile._options() == {_compile._FLAG: False}
+        assert _linalg._options() == {_linalg._FLAG: False}
     model, state = _double_pendulum()
 
-    def compiled(emitters: bool):
-        roll = jax.jit(lambda s: physics.rollout(model, s, 1 / 600, 200).final,
-                       compiler_options={_compile._FLAG: emitters})
-        return roll.lower(state).compile()
+    def final(torque):  # one step with joint torques [2, 3]
+        return physics.step(model, state, 1 / 600, joint_torque=torque).angular_velocity
 
-    programs = compiled(False), compiled(True)
-    assert programs[0].as_text() != programs[1].as_text(), "the option did not reach the compiler"
-    classic, default = (c(state) for c in programs)
-    for name in ("position", "orientation", "linear_velocity", "angular_velocity"):
-        np.testing.assert_allclose(getattr(classic, name), getattr(default, name), rtol=0, atol=1e-12, err_msg=name)
+    classic = _linalg._jit_with({_linalg._FLAG: False}, final)
+    default = jax.jit(final, compiler_options={_linalg._FLAG: True})
+    tau = jnp.asarray(np.random.default_rng(3).standard_normal((2, 2, 3)))
+    programs = classic.lower(tau[0]).compile().compiled, default.lower(tau[0]).compile()
+    assert programs[0].as_text() != programs[1].as_text()  # the option reaches XLA
+    seen = []
+    monkeypatch.setattr(_linalg, "_top_level", lambda real=_linalg._top_level: seen.append(real()) or seen[-1])
+    expected = [default(t) for t in tau]
+    runs = {
+        "direct": lambda: [classic(t) for t in tau],
+        "vmap": lambda: list(jax.vmap(classic)(tau)),
+        "jvp": lambda: [jax.jvp(classic, (t,), (jnp.ones_like(t),))[0] for t in tau],
+        "jit": lambda: list(jax.jit(jax.vmap(classic))(tau)),
+        "grad": lambda: [jax.value_and_grad(lambda t: jnp.sum(classic(t)))(t)[1] * 0 + classic(t) for t in tau],
+    }
+    for name, run in runs.items():
+        seen.clear()
+        got = run()
+        assert seen and all(seen) == (name in ("direct", "vmap", "jvp")), (name, seen)
+        for g, e in zip(got, expected):
+            np.testing.assert_allclose(np.asarray(g), np.asarray(e), rtol=0, atol=1e-12, err_msg=name)
