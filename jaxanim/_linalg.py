@@ -104,11 +104,14 @@ def _jit_with(options: dict, fun, **kwargs):
         return plain
     top = eqx.filter_jit(fun, compiler_options=options, **kwargs)
 
+    def pick():
+        return top if _top_level() else plain
+
     @functools.wraps(fun)
     def call(*args, **kw):
-        return (top if _top_level() else plain)(*args, **kw)
+        return pick()(*args, **kw)
 
-    call.lower = lambda *args, **kw: (top if _top_level() else plain).lower(*args, **kw)
+    call.lower = lambda *args, **kw: pick().lower(*args, **kw)
     return call
 
 

@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._linalg import COMPILER_OPTIONS
 from .._errors import JaxanimError
+from .._linalg import COMPILER_OPTIONS
 from ..skeleton._bvh import write_bvh
 from ..skeleton._skeleton import Motion
 from ._common import _UI, _Clip, _duration, _load, _ms, _num

@@ -14,8 +14,8 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 import solvers
 
-from .._linalg import jit
 from .._errors import JaxanimError
+from .._linalg import jit
 from ._bodies import BodyState
 from ._model import PhysicsModel
 from ._step import _check_dt, _check_state, control_for, _step

@@ -17,8 +17,8 @@ from jaxtyping import Array, ArrayLike, Float
 import solvers
 
 from .. import rotations as rot
-from .._linalg import jit
 from .._errors import JaxanimError
+from .._linalg import jit
 from ._bodies import BodyState, _check_loads, _free_velocities, _integrate
 from ._contact import contact_rows, penalty_loads
 from ._control import Control, Servo, StablePD, _as_control

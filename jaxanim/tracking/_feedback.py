@@ -30,8 +30,8 @@ from jaxtyping import Array, Float
 import solvers
 
 from .. import rotations as rot
-from .._linalg import jit
 from .._errors import JaxanimError, check_shape
+from .._linalg import jit
 from ..character._build import Character
 from ._samcon import (
     Feedback, TrackingReference, TrackingResult, _check, _problem, state_difference, state_retract,

@@ -43,9 +43,8 @@ from jaxtyping import Array, Bool, Float
 from solvers import RESULTS
 
 from .. import rotations as rot
-from .._linalg import jit
 from .._errors import JaxanimError, check_positive
-from .._linalg import dot, matmul
+from .._linalg import dot, jit, matmul
 from ..character._build import Character, clip_targets, root_body
 from ..physics._bodies import BodyState
 from ..physics._contact import contact_geometry
