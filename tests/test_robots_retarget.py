@@ -353,7 +353,8 @@ def test_gradient_of_the_solve_against_finite_differences(tiny):
 
     s0, w0 = problem.scale, problem.position_weight
     gs, gw = jax.jit(jax.grad(loss, argnums=(0, 1)))(s0, w0)
-    loss = jax.jit(loss)  # one program for the differences
+    # the differences call the public solve eagerly: its program for this robot, map and length is the one
+    # test_padded_clips_equal_the_clip_alone compiled (a jax.jit of the loss compiled another, 5 s in the suite)
     h = 1e-6
     fd_s = (loss(s0 + h, w0) - loss(s0 - h, w0)) / (2 * h)
     np.testing.assert_allclose(float(gs), float(fd_s), rtol=1e-4)
