@@ -53,20 +53,6 @@ def pytest_configure(config):
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
-#: The files that take longest (worker seconds on 2 cores, 2026-12-03; the retargeting tests 2026-12-05),
-#: heaviest first. xdist's --dist loadfile hands files out in collection order, so a long file collected
-#: last (test_tracking, about 350 s, sorts near the end) would start when the other worker is nearly
-#: done and set the wall time alone; scheduled first, the other files fill the second worker around it.
-_HEAVY_FIRST = ("test_tracking.py", "test_tracking_jump.py", "test_ik.py", "test_robots_retarget.py", "test_balance.py",
-                "test_least_squares.py", "test_torque_limits.py", "test_ik_limits.py", "test_cli_simulate.py",
-                "test_ilqr.py")
-
-
-def pytest_collection_modifyitems(config, items):
-    rank = {name: i for i, name in enumerate(_HEAVY_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
-
-
 def pytest_unconfigure(config):
     if getattr(config, "_jaxanim_cache", None):
         shutil.rmtree(config._jaxanim_cache, ignore_errors=True)
