@@ -1,0 +1,85 @@
+"""Where the suite's time goes: ``python -m pytest -p tests.compile_report`` (opt-in, a pytest plugin).
+
+Compiling dominates the suite, so this counts, per test, the XLA programs compiled and the seconds spent
+tracing, lowering and compiling them (JAX's own ``jax.monitoring`` duration events), beside the test's wall
+time, and prints the tests that compiled longest at the end. Under pytest-xdist each worker counts its own
+tests and sends them to the controller. ``JAXANIM_COMPILE_REPORT=path.json`` also writes every test's row.
+Persistent-cache hits are not compiles, so they do not count.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import pytest
+
+#: jax.monitoring's duration events, by the column they add to.
+_EVENTS = {"/jax/core/compile/backend_compile_duration": "compile",
+           "/jax/core/compile/jaxpr_trace_duration": "trace",
+           "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower"}
+_TOP = 25
+
+_rows: dict[str, dict[str, float]] = {}
+_current: list[str] = []
+
+
+def _listener(event: str, duration: float, **_) -> None:
+    column = _EVENTS.get(event)
+    if column is None or not _current:
+        return
+    row = _rows.setdefault(_current[-1], {})
+    row[column] = row.get(column, 0.0) + duration
+    if column == "compile":
+        row["programs"] = row.get("programs", 0) + 1
+
+
+def pytest_configure(config):
+    import jax.monitoring
+
+    jax.monitoring.register_event_duration_secs_listener(_listener)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    _current.append(item.nodeid)
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        _rows.setdefault(item.nodeid, {})["wall"] = time.perf_counter() - start
+        _current.pop()
+
+
+def pytest_sessionfinish(session):
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:  # an xdist worker: the controller merges the rows
+        workeroutput["jaxanim_compile_report"] = json.dumps(_rows)
+
+
+def pytest_testnodedown(node, error):
+    rows = getattr(node, "workeroutput", {}).get("jaxanim_compile_report")
+    if rows:
+        _rows.update(json.loads(rows))
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    if hasattr(config, "workerinput") or not _rows:
+        return
+    path = os.environ.get("JAXANIM_COMPILE_REPORT")
+    if path:
+        with open(path, "w", encoding="utf-8") as f:
+            json.dump(_rows, f, indent=1, sort_keys=True)
+    total = {k: sum(r.get(k, 0.0) for r in _rows.values()) for k in ("wall", "compile", "trace", "lower", "programs")}
+    tr = terminalreporter
+    tr.section("compile report (tests.compile_report)")
+    tr.write_line(f"{len(_rows)} tests: {total['wall']:.0f} s of test time, of which XLA compiled "
+                  f"{int(total['programs'])} programs in {total['compile']:.0f} s, tracing {total['trace']:.0f} s, "
+                  f"lowering {total['lower']:.0f} s")
+    tr.write_line(f"{'wall s':>7} {'compile s':>9} {'programs':>8} {'trace s':>7}  test (the {_TOP} longest compiles)")
+    for nodeid, r in sorted(_rows.items(), key=lambda kv: -kv[1].get("compile", 0.0))[:_TOP]:
+        tr.write_line(f"{r.get('wall', 0.0):7.1f} {r.get('compile', 0.0):9.1f} {int(r.get('programs', 0)):8d} "
+                      f"{r.get('trace', 0.0):7.1f}  {nodeid}")
+    if path:
+        tr.write_line(f"every test's row: {path}")
