@@ -58,6 +58,7 @@ def pytest_sessionfinish(session):
         workeroutput["jaxanim_compile_report"] = json.dumps(_rows)
 
 
+@pytest.hookimpl(optionalhook=True)  # an xdist hook: without xdist, pytest would refuse the plugin
 def pytest_testnodedown(node, error):
     rows = getattr(node, "workeroutput", {}).get("jaxanim_compile_report")
     if rows:
