@@ -3,7 +3,8 @@
 Compiling dominates the suite, so this counts, per test, the XLA programs compiled and the seconds spent
 tracing, lowering and compiling them (JAX's own ``jax.monitoring`` duration events), beside the test's wall
 time, and prints the tests that compiled longest at the end. Under pytest-xdist each worker counts its own
-tests and sends them to the controller. ``JAXANIM_COMPILE_REPORT=path.json`` also writes every test's row.
+tests and sends them to the controller. ``JAXANIM_COMPILE_REPORT=path.json`` also writes every test's row,
+with the name and compile seconds of each program it compiled.
 Persistent-cache hits are not compiles, so they do not count.
 """
 
@@ -25,7 +26,7 @@ _rows: dict[str, dict[str, float]] = {}
 _current: list[str] = []
 
 
-def _listener(event: str, duration: float, **_) -> None:
+def _listener(event: str, duration: float, fun_name: str = "?", **_) -> None:
     column = _EVENTS.get(event)
     if column is None or not _current:
         return
@@ -33,6 +34,7 @@ def _listener(event: str, duration: float, **_) -> None:
     row[column] = row.get(column, 0.0) + duration
     if column == "compile":
         row["programs"] = row.get("programs", 0) + 1
+        row.setdefault("compiled", []).append([fun_name, round(duration, 3)])
 
 
 def pytest_configure(config):
@@ -72,7 +74,7 @@ def pytest_terminal_summary(terminalreporter, config):
     if path:
         with open(path, "w", encoding="utf-8") as f:
             json.dump(_rows, f, indent=1, sort_keys=True)
-    total = {k: sum(r.get(k, 0.0) for r in _rows.values()) for k in ("wall", "compile", "trace", "lower", "programs")}
+    total = {k: sum(r.get(k, 0) for r in _rows.values()) for k in ("wall", "compile", "trace", "lower", "programs")}
     tr = terminalreporter
     tr.section("compile report (tests.compile_report)")
     tr.write_line(f"{len(_rows)} tests: {total['wall']:.0f} s of test time, of which XLA compiled "
