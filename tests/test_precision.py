@@ -77,10 +77,13 @@ def _small_character():
     return skel, char, state
 
 
-DTYPES = [jnp.float32, jnp.float64]
+#: The kernels are lowered in float32 only: TF32 is a float32 matter (a float64 ``dot`` runs in float64 on every
+#: backend), and no product of the library chooses its precision by dtype (each states HIGHEST or the caller's
+#: ``precision``; the source check below). The float64 lowerings cost 22 s of the suite's time.
+DTYPES = [jnp.float32]
 
 
-@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
 def test_kinematics_state_highest(dtype):
     skel, clip = _walk(dtype)
     q, t = clip.rotations[0], clip.translations[0]
@@ -97,7 +100,7 @@ def test_kinematics_state_highest(dtype):
                                                                                  jnp.ones(skel.num_joints, dtype)), q, t))
 
 
-@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
 def test_ik_states_highest(dtype):
     """The IK normal equations (own LM and Gauss-Newton with hard limits), CCD, and the implicit
     derivative of a solve."""
@@ -127,7 +130,7 @@ def test_ik_states_highest(dtype):
     _assert_highest("grad of solve_ik", _lower(jax.grad(lambda g: jnp.sum(lm(g) ** 2)), goals))
 
 
-@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
 @pytest.mark.parametrize("method", skinning.METHODS)
 def test_skinning_states_highest_and_takes_the_fast_path_on_request(dtype, method, monkeypatch):
     """LBS / DQS by default; ``precision="default"`` reaches the blend's products over the vertices
@@ -152,7 +155,7 @@ def test_skinning_states_highest_and_takes_the_fast_path_on_request(dtype, metho
         skinning.skin(skel, clip.rotations[0], clip.translations[0], mesh, w, method, precision="tf32")
 
 
-@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
 def test_matching_states_highest_and_takes_the_fast_path_on_request(dtype):
     """The search (one chunk, and the scan over chunks), a crowd of the controller, and the fast
     path of both on request."""
@@ -245,7 +248,7 @@ def _lq(n=18, m=4, T=5, dtype=jnp.float64):  # n^3 > 4096: the products are dots
     return (jnp.asarray(A, dtype), jnp.asarray(B, dtype), jnp.eye(n, dtype=dtype), jnp.eye(m, dtype=dtype), T)
 
 
-@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
 def test_solvers_state_highest(dtype):
     """Least squares (own LM, GN, gradient descent, the optimistix and jaxopt adapters; their implicit
     derivative), LQR and its derivative, DARE, CARE, iLQR, DDP, box-DDP and MPC on the problem library."""
