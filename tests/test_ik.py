@@ -409,14 +409,11 @@ def test_float32_benchmark_batch_has_no_nan():
     sol = batched_solver(skel32, position_tolerance=1e-3 * _height(skel), orientation_tolerance=0.01)(targets, q0, t0)
     leaves = {"rotations": sol.rotations, "translations": sol.translations, "position_errors": sol.position_errors,
               "orientation_errors": sol.orientation_errors, **sol.stats}
-    # one program for the checks of every leaf (eager, each op would compile per leaf shape)
-    checks = jax.jit(lambda xs: {name: (jnp.all(jnp.isfinite(x) | (x == jnp.inf)), jnp.any(jnp.isnan(x)))
-                                 for name, x in xs.items()})(leaves)
-    for name, x in leaves.items():
+    for name, x in leaves.items():  # checked in numpy: nothing to compile (a jit of the checks took 2.5 s)
         assert x.dtype != jnp.float64, name
-        finite_or_inf, any_nan = checks[name]
-        assert bool(finite_or_inf), name  # stats use inf for "not finite"
-        assert not bool(any_nan), name
+        v = np.asarray(x)
+        assert np.all(np.isfinite(v) | (v == np.inf)), name  # stats use inf for "not finite"
+        assert not np.any(np.isnan(v)), name
     assert float(np.mean(np.asarray(sol.success))) >= 0.99, float(np.mean(np.asarray(sol.success)))
 
 
