@@ -11,7 +11,8 @@ left out of the sums, because their bodies' instructions are counted themselves.
 - the share of each kind;
 - the five most expensive instructions, with the JAX operation they came from;
 - the kernels in the compiled program: the compiler builds every one separately (LLVM), so their number drives
-  compile time.
+  compile time; and the library functions they come from (:func:`kernel_sources`: the innermost frame of the
+  project's code on each kernel's stack, which XLA keeps in the compiled text), the most first.
 
 A row's *cause* is written from these measurements, and the kernel's own benchmark section states the ratio
 to the peer. The profiler slows every call, so compare the shares, not the times, with the other sections.
@@ -33,7 +34,8 @@ import jax.numpy as jnp
 from .report import Row, Table, format_seconds
 from .timing import budget_spent, compile_time, sample_call
 
-__all__ = ["KERNELS", "Instruction", "hlo_instructions", "kind_of", "profile_events", "run_profile"]
+__all__ = ["KERNELS", "Instruction", "hlo_instructions", "kernel_sources", "kind_of", "profile_events",
+           "run_profile"]
 
 PROFILED_CALLS = 2
 CART_POLE_PROFILED_STEPS = 60  # of its 600: the trace of every event of a whole solve would not fit in memory
@@ -135,6 +137,86 @@ def profile_events(compiled: Callable, args: tuple, calls: int = PROFILED_CALLS,
     return {k: (total[k] / calls, count[k] // calls) for k in total}
 
 
+_KERNEL = re.compile(r"= \S+ (?:fusion|custom-call|copy|dot|gather|scatter|transpose|sort)\(")
+
+
+def _kernel_lines(text: str) -> list[str]:
+    """The instructions of ``compiled.as_text()`` that are kernels of their own: fusions, library calls, copies,
+    dots, gathers, scatters, transposes and sorts outside the fused computations (whose instructions are inlined
+    into their fusion's kernel)."""
+    out, fused = [], False
+    for line in text.splitlines():
+        if line and not line[0].isspace() and line.rstrip().endswith("{"):
+            fused = line.removeprefix("ENTRY ").lstrip("%").startswith("fused")
+        elif not fused and _KERNEL.search(line):
+            out.append(line)
+    return out
+
+
+_TABLES = ("FileNames", "FunctionNames", "FileLocations", "StackFrames")
+_PROJECT = ("jaxanim/", "solvers/", "benchmarks/")
+#: thin wrappers that only state a product's precision: a kernel they emit is counted at their caller
+_WRAPPERS = {"matmul", "dot", "einsum"}
+
+
+def _stack_tables(text: str) -> dict[str, dict[int, str]]:
+    """The compiled text's stack-frame tables (``FileNames`` ... ``StackFrames``), each ``{id: line}``."""
+    tables: dict[str, dict[int, str]] = {}
+    section = None
+    for line in text.splitlines():
+        if line in _TABLES:
+            section = tables.setdefault(line, {})
+        elif section is not None:
+            m = re.match(r"(\d+) (.*)$", line)
+            if not m:
+                section = None
+                continue
+            section[int(m.group(1))] = m.group(2)
+    return tables
+
+
+def kernel_sources(text: str) -> list[tuple[str, int]]:
+    """``[(source, kernels)]``, the most first: the kernels of ``compiled.as_text()`` (:func:`_kernel_lines`) by
+    the innermost function of this project (``jaxanim``, ``solvers``, ``benchmarks``) on the stack that XLA recorded
+    for each (``stack_frame_id``; the precision-stating product wrappers count at their caller), as
+    ``"file.py:function"`` (``"physics/_bodies.py:_spd_inverse"``: paths in ``jaxanim`` from there, the others'
+    from the repository's root); ``"other"`` for kernels without one. Empty where the text has no stack tables.
+
+    In the printed tables a frame's ``parent_frame_id`` is the parent's number plus one (0 for none)."""
+    tables = _stack_tables(text)
+    if any(t not in tables for t in _TABLES):
+        return []
+    files = {k: v.strip('"') for k, v in tables["FileNames"].items()}
+    funcs = {k: v.strip('"') for k, v in tables["FunctionNames"].items()}
+    locations, frames = {}, {}
+    for k, v in tables["FileLocations"].items():
+        m = re.search(r"file_name_id=(\d+) function_name_id=(\d+)", v)
+        if m:
+            locations[k] = (int(m.group(1)), int(m.group(2)))
+    for k, v in tables["StackFrames"].items():
+        m = re.search(r"file_location_id=(\d+) parent_frame_id=(\d+)", v)
+        if m:
+            frames[k] = (int(m.group(1)), int(m.group(2)) - 1)
+
+    def source(frame: int) -> str:
+        seen = set()
+        while frame in frames and frame not in seen:
+            seen.add(frame)
+            location, frame = frames[frame]
+            file_id, func_id = locations.get(location, (0, 0))
+            path, func = files.get(file_id, ""), funcs.get(func_id, "")
+            rel = next((path[path.rindex(p):] for p in _PROJECT if p in path), None)
+            if rel is not None and not (func in _WRAPPERS and rel.endswith("_linalg.py")):
+                return f"{rel.split('/', 1)[1] if rel.count('/') > 1 else rel}:{func.replace('.<locals>.', '.')}"
+        return "other"
+
+    counts: collections.Counter = collections.Counter()
+    for line in _kernel_lines(text):
+        m = re.search(r"stack_frame_id=(\d+)", line)
+        counts[source(int(m.group(1))) if m else "other"] += 1
+    return counts.most_common()
+
+
 @dataclasses.dataclass(frozen=True)
 class KernelProfile:
     """The summary of one profiled kernel (see the module docstring)."""
@@ -144,6 +226,7 @@ class KernelProfile:
     by_kind: list[tuple[str, float]]  # (kind, share of busy time), largest first
     top: list[tuple[str, str, float, int]]  # (instruction, op_name tail, share, runs per call)
     kernels_compiled: int
+    kernel_sources: list[tuple[str, int]] = dataclasses.field(default_factory=list)  # (function, kernels)
 
 
 def summarize(events: dict[str, tuple[float, int]], instructions: dict[str, Instruction], text: str) -> KernelProfile:
@@ -155,19 +238,22 @@ def summarize(events: dict[str, tuple[float, int]], instructions: dict[str, Inst
         by_kind[kind_of(instructions.get(k))] += t
     top = sorted(leaf.items(), key=lambda kv: -kv[1][0])[:5]
     tail = lambda k: "/".join(instructions[k].op_name.split("/")[-2:]) if k in instructions else "?"  # noqa: E731
-    kernels = len(re.findall(r"= \S+ (?:fusion|custom-call|copy|dot|gather|scatter|transpose|sort)\(", text))
+    kernels = len(_kernel_lines(text))
     return KernelProfile(
         instructions_run=sum(c for _, c in leaf.values()), busy_s=busy,
         by_kind=[(k, t / busy) for k, t in by_kind.most_common()],
-        top=[(k, tail(k), t / busy, c) for k, (t, c) in top], kernels_compiled=kernels)
+        top=[(k, tail(k), t / busy, c) for k, (t, c) in top], kernels_compiled=kernels,
+        kernel_sources=kernel_sources(text))
 
 
 def _describe(p: KernelProfile, seconds: float) -> str:
     kinds = ", ".join(f"{k} {s:.0%}" for k, s in p.by_kind[:5] if s >= 0.01)
     top = "; ".join(f"`{k}` ({op}) {s:.0%}, {c}×" for k, op, s, c in p.top)
     per = seconds / max(p.instructions_run, 1)
+    named = [(f, n) for f, n in p.kernel_sources if f != "other"][:5]
+    sources = (f" (the most from {', '.join(f'`{f}` {n}' for f, n in named)})" if named else "")
     return (f"{p.instructions_run} XLA instructions run per call ({format_seconds(per)} of wall time each); "
-            f"{p.kernels_compiled} kernels compiled; time by kind: {kinds}; most expensive: {top}")
+            f"{p.kernels_compiled} kernels compiled{sources}; time by kind: {kinds}; most expensive: {top}")
 
 
 # --- the kernels ---------------------------------------------------------------------------------------------------
