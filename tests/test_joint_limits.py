@@ -171,6 +171,23 @@ def test_scan_levels_gives_the_same_steps():
                                    rtol=0, atol=1e-12)
 
 
+def test_spd_inverse_equals_numpy_for_every_size():
+    """The tree solve's inverses (closed forms up to 3 x 3, Schur-complement blocks above) against numpy's LU
+    inverse, batched, on symmetric positive definite matrices of condition numbers up to a few hundred (errors
+    about 1e-14 of the largest entry)."""
+    from jaxanim.physics._bodies import _spd_inverse
+
+    rng = np.random.default_rng(3)
+    for k in range(1, 8):
+        X = rng.normal(size=(5, 4, k, k))
+        A = X @ np.swapaxes(X, -1, -2) + 1e-2 * k * np.eye(k)
+        got = np.asarray(jax.jit(_spd_inverse)(jnp.asarray(A)))
+        want = np.linalg.inv(A)
+        scale = np.abs(want).max(axis=(-2, -1), keepdims=True)
+        assert np.max(np.abs(got - want) / scale) < 1e-12, k
+        np.testing.assert_allclose(got, np.swapaxes(got, -1, -2), rtol=0, atol=1e-12 * scale.max())
+
+
 @pytest.mark.parametrize("scan_levels", [False, True], ids=["levels-written-out", "levels-scanned"])
 def test_tree_solve_satisfies_its_system_and_its_jvp_is_the_implicit_one(scan_levels):
     """The tree solve on a random forest (a joint to the world, branching, a free body, 2
