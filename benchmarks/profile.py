@@ -182,7 +182,9 @@ def kernel_sources(text: str) -> list[tuple[str, int]]:
     ``"file.py:function"`` (``"physics/_bodies.py:_spd_inverse"``: paths in ``jaxanim`` from there, the others'
     from the repository's root); ``"other"`` for kernels without one. Empty where the text has no stack tables.
 
-    In the printed tables a frame's ``parent_frame_id`` is the parent's number plus one (0 for none)."""
+    A custom JVP rule's operations carry the stack of its primal's call, so a differentiated solve's kernels count
+    at the function that called it (the tracking gains' at ``solve_rows``). In the printed tables a frame's
+    ``parent_frame_id`` is the parent's number plus one (0 for none)."""
     tables = _stack_tables(text)
     if any(t not in tables for t in _TABLES):
         return []
