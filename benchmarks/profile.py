@@ -209,7 +209,8 @@ def kernel_sources(text: str) -> list[tuple[str, int]]:
             path, func = files.get(file_id, ""), funcs.get(func_id, "")
             rel = next((path[path.rindex(p):] for p in _PROJECT if p in path), None)
             if rel is not None and not (func in _WRAPPERS and rel.endswith("_linalg.py")):
-                return f"{rel.split('/', 1)[1] if rel.count('/') > 1 else rel}:{func.replace('.<locals>.', '.')}"
+                name = rel.removeprefix("jaxanim/") if rel.count("/") > 1 else rel
+                return f"{name}:{func.replace('.<locals>.', '.')}"
         return "other"
 
     counts: collections.Counter = collections.Counter()
