@@ -38,6 +38,13 @@ CMU_TO_G1 = {
     ],
 }
 
+#: The banded solves compiled whole: called eagerly, each call compiled every operation of the solve apart, on every
+#: new shape (60-70 small programs and about 3.5 s per parametrization of the pentadiagonal test in the suite); _solve
+#: runs them under jit as well.
+_tridiagonal = jax.jit(solvers.block_tridiagonal_solve)
+_pentadiagonal = jax.jit(solvers.block_pentadiagonal_solve)
+_pentadiagonal_batch = jax.jit(jax.vmap(solvers.block_pentadiagonal_solve))
+
 
 def test_block_tridiagonal_solve_equals_a_dense_solve():
     rng = np.random.default_rng(0)
@@ -48,12 +55,12 @@ def test_block_tridiagonal_solve_equals_a_dense_solve():
     b = rng.normal(size=N * m)
     D = np.stack([H[i * m:(i + 1) * m, i * m:(i + 1) * m] for i in range(N)])
     L = np.stack([H[i * m:(i + 1) * m, (i - 1) * m:i * m] for i in range(1, N)])
-    x, ok = solvers.block_tridiagonal_solve(jnp.asarray(D), jnp.asarray(L), jnp.asarray(b.reshape(N, m)))
+    x, ok = _tridiagonal(jnp.asarray(D), jnp.asarray(L), jnp.asarray(b.reshape(N, m)))
     assert bool(ok)
     np.testing.assert_allclose(np.asarray(x).ravel(), np.linalg.solve(H, b), rtol=1e-12, atol=1e-12)
     bad = D.copy()
     bad[3] = -np.eye(m)
-    _, ok = solvers.block_tridiagonal_solve(jnp.asarray(bad), jnp.asarray(L), jnp.asarray(b.reshape(N, m)))
+    _, ok = _tridiagonal(jnp.asarray(bad), jnp.asarray(L), jnp.asarray(b.reshape(N, m)))
     assert not bool(ok)
 
 
@@ -72,15 +79,15 @@ def test_block_pentadiagonal_solve_equals_a_dense_solve(T, n):
         for t in range(T - k):
             H[(t + k) * n:(t + k + 1) * n, t * n:(t + 1) * n] = H[t * n:(t + 1) * n, (t + k) * n:(t + k + 1) * n] = np.diag(e[t])
     b = rng.normal(size=(T, n))
-    x, ok = solvers.block_pentadiagonal_solve(jnp.asarray(D), jnp.asarray(e1), jnp.asarray(e2), jnp.asarray(b))
+    x, ok = _pentadiagonal(jnp.asarray(D), jnp.asarray(e1), jnp.asarray(e2), jnp.asarray(b))
     assert bool(ok)
     np.testing.assert_allclose(np.asarray(x).ravel(), np.linalg.solve(H, b.ravel()), rtol=1e-10, atol=1e-12)
     bad = D.copy()
     bad[T // 2] = -np.eye(n)
-    _, ok = solvers.block_pentadiagonal_solve(jnp.asarray(bad), jnp.asarray(e1), jnp.asarray(e2), jnp.asarray(b))
+    _, ok = _pentadiagonal(jnp.asarray(bad), jnp.asarray(e1), jnp.asarray(e2), jnp.asarray(b))
     assert not bool(ok)
     # under vmap (the loop reads the batched blocks where it needs them): each system as alone
-    xs, oks = jax.vmap(solvers.block_pentadiagonal_solve)(*(jnp.asarray(np.stack([v, 2 * v])) for v in (D, e1, e2, b)))
+    xs, oks = _pentadiagonal_batch(*(jnp.asarray(np.stack([v, 2 * v])) for v in (D, e1, e2, b)))
     assert bool(oks[0]) and bool(oks[1])
     np.testing.assert_allclose(np.asarray(xs[0]), np.asarray(x), rtol=1e-12, atol=1e-14)
 
@@ -103,8 +110,8 @@ def test_a_retargeting_step_with_ground_rows_against_its_dense_model():
     touching = rng.uniform(size=(T, P)) < 0.5
     mu = 1e-2
     ground = (jnp.asarray(hs), jnp.asarray(jz), jnp.asarray(outside))
-    delta, ok, predicted, touched = _step(*(jnp.asarray(v) for v in (JtJ, g, c, a, np.ones((T, n)), mu)), ground,
-                                          jnp.asarray(touching))
+    delta, ok, predicted, touched = jax.jit(_step)(*(jnp.asarray(v) for v in (JtJ, g, c, a, np.ones((T, n)), mu)),
+                                                   ground, jnp.asarray(touching))  # one program, not 60 eager ones
     assert bool(ok)
     # the model's Hessian: the frames' J'J, velocity and acceleration terms (Hs), and the touching points' rows (H)
     Hs = np.zeros((T * n, T * n))
@@ -142,8 +149,10 @@ def test_the_stopping_test_wants_a_small_predicted_decrease_too():
     and predicted decreases are both small does, and so does one that moves nothing."""
     from jaxanim.robots._retarget_solve import _converged
 
+    converged = jax.jit(_converged)  # one program for the five calls (eagerly: ten)
+
     def stops(actual, predicted, step=1e-3, mu=1e-5):
-        return bool(_converged(jnp.asarray(True), jnp.asarray(mu), jnp.asarray(2.3), jnp.asarray(actual),
+        return bool(converged(jnp.asarray(True), jnp.asarray(mu), jnp.asarray(2.3), jnp.asarray(actual),
                                jnp.asarray(predicted), jnp.full((3, 2), step), jnp.asarray(1e-4), jnp.asarray(1e-7)))
 
     assert not stops(1e-5, 0.045)
@@ -232,12 +241,14 @@ def test_walk_onto_the_shipped_humanoid_plants_its_feet(walk):
 def test_padded_clips_equal_the_clip_alone(tiny):
     """Three clips padded to one length: more than a chunk of the batched solve (``RETARGET_LANES``), so the
     last chunk is padded too; each clip equals its solve alone (the two shorter ones, of one length and different
-    frames, share the program of that solve: one compile fewer than clips of three lengths)."""
+    frames, share the program of that solve: one compile fewer than clips of three lengths). The longest is the
+    whole walk, whose source kinematics and contact detection the ``walk`` fixture compiled (a clip of its own
+    length compiled two programs more, about 1.5 s)."""
     from jaxanim.robots._retarget_solve import RETARGET_LANES
 
     skel, motion, robot, mapping, options = tiny
     short = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
-    long = jaxanim.Motion(motion.rotations[:16], motion.translations[:16], motion.frame_time)
+    long = motion
     middle = jaxanim.Motion(motion.rotations[2:14], motion.translations[2:14], motion.frame_time)
     clips = [long, short, middle]
     assert len(clips) > RETARGET_LANES and len(clips) % RETARGET_LANES
@@ -345,14 +356,18 @@ def test_gradient_of_the_solve_against_finite_differences(tiny):
     clip = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
     problem = robots.prepare_retarget(skel, clip, robot, mapping)
 
-    def loss(scale, weights):
+    def loss(scale, weights, problem=problem, robot=robot):
         p = robots.RetargetProblem(**{**{f: getattr(problem, f) for f in problem.__dataclass_fields__},
                                       "scale": scale, "position_weight": weights})
         q = robots.solve_retarget(robot, p, options).qpos
         return jnp.sum(q[:, 2]) + jnp.sum(jnp.sin(q[:, 7:]))  # root height, the four hinges
 
     s0, w0 = problem.scale, problem.position_weight
-    gs, gw = jax.jit(jax.grad(loss, argnums=(0, 1)))(s0, w0)
+    # the problem and the robot are the jitted gradient's arguments, as they are _solve's: closed over, their arrays
+    # were constants of the program for XLA to fold (one process on the loaded 2-core machine: 44 -> 33 CPU seconds
+    # of tracing and compiling, the second of the two reusing the inner solve's trace; the wall-clock compile times
+    # were too noisy there to tell apart)
+    gs, gw = jax.jit(jax.grad(loss, argnums=(0, 1)))(s0, w0, problem, robot)
     # the differences call the public solve eagerly: its program for this robot, map and length is the one
     # test_padded_clips_equal_the_clip_alone compiled (a jax.jit of the loss compiled another, 5 s in the suite)
     h = 1e-6
