@@ -93,7 +93,7 @@ def test_kinematics_state_highest(dtype):
     _assert_highest("jacobian", _lower(lambda q, t: jaxanim.jacobian(skel, q, t, sites), q, t))
     _assert_highest("apply_increment", _lower(lambda q, t, d: jaxanim.apply_increment(skel, q, t, d), q, t,
                                               jnp.zeros(n, dtype)), at_least=0)
-    fk = jaxanim.forward_kinematics(skel, q, t)
+    fk = jax.eval_shape(lambda q, t: jaxanim.forward_kinematics(skel, q, t), q, t)  # shapes (op by op: 58 programs)
     _assert_highest("global_to_local", _lower(lambda R, p: jaxanim.global_to_local(skel, R, p), fk.rotations,
                                               fk.positions))
     _assert_highest("center_of_mass", _lower(lambda q, t: jaxanim.center_of_mass(skel, q, t,
@@ -103,12 +103,12 @@ def test_kinematics_state_highest(dtype):
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
 def test_ik_states_highest(dtype):
     """The IK normal equations (own LM and Gauss-Newton with hard limits), CCD, and the implicit
-    derivative of a solve."""
+    derivative of a solve (with the solve itself, which the gradient's program holds whole: the value and
+    the gradient, one program; the solve lowered apart cost about 1 s more on the loaded 2-core machine)."""
     skel, clip = _walk(dtype)
     q, t = clip.rotations[0], clip.translations[0]
-    goal = jaxanim.forward_kinematics(skel, clip.rotations[20], clip.translations[20])
-    j_hand, j_foot = skel.index("LeftHand"), skel.index("RightFoot")
-    goals = jnp.stack([goal.positions[j_hand], goal.positions[j_foot]])
+    j_foot = skel.index("RightFoot")
+    goals = jax.ShapeDtypeStruct((2, 3), dtype)  # the hand's and the foot's positions: lowering needs shapes only
     limits = (ik.SwingTwistLimit("LeftArm", swing=[80, 60], twist=[-45, 45], degrees=True),)
 
     def targets(g):
@@ -124,10 +124,9 @@ def test_ik_states_highest(dtype):
     def ccd(g):
         return ik.solve_ik_ccd(skel, targets(g), q, t, max_sweeps=3).rotations
 
-    _assert_highest("solve_ik (LM)", _lower(lm, goals))
+    _assert_highest("solve_ik (LM) and its grad", _lower(jax.value_and_grad(lambda g: jnp.sum(lm(g) ** 2)), goals))
     _assert_highest("solve_ik (GN, hard limits)", _lower(gn_limits, goals))
     _assert_highest("solve_ik_ccd", _lower(ccd, goals))
-    _assert_highest("grad of solve_ik", _lower(jax.grad(lambda g: jnp.sum(lm(g) ** 2)), goals))
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
@@ -187,25 +186,32 @@ def test_physics_character_and_tracking_state_highest():
     tau = jnp.zeros((model.joints.num_joints, 3))
     for name, m in (("complementarity", model), ("penalty", penalty)):
         step = lambda s, tau, m=m: physics.step(m, s, 1 / 120, joint_torque=tau)  # noqa: E731
-        _assert_highest(f"physics.step ({name})", _lower(step, state, tau))
-        _assert_highest(f"jvp of physics.step ({name})",
-                        _lower(lambda s, tau: jax.jvp(lambda x: step(s, x), (tau,), (tau,))[1], state, tau))
+        # the step and its JVP's tangent, one program: under the JVP the constraint solves' primal comes from their
+        # derivative rules, so the plain step stays beside it (lowered apart, the two took about 10 % longer)
+        _assert_highest(f"physics.step and its jvp ({name})",
+                        _lower(lambda s, tau: (step(s, tau), jax.jvp(lambda x: step(s, x), (tau,), (tau,))[1]),
+                               state, tau))
     ctrl, args = character.balance_controller(char, skel.rest_rotations(), None, 1 / 120, support="initial",
                                               foot_names=("forearm",), leg_joints=(("forearm", "arm"),))
     _assert_highest("rollout with the balance controller", _lower(
         lambda s: physics.rollout(model, s, 1 / 120, 4, controller=ctrl, controller_args=args).final.position, state))
     motion = _looped_motion(jaxanim.rest_motion(skel, 2), 7)
-    ref = tracking.tracking_reference(char, motion)
+    # the reference as shapes only, an argument of the programs (built, it compiled two programs: 1.4 s more)
+    ref = jax.eval_shape(lambda: tracking.tracking_reference(char, motion))
     opts = tracking.tracking_options(char, 1 / 30, 4)
-    _assert_highest("tracking.samcon", _lower(lambda k: tracking.samcon(char, ref, k, opts).corrections,
-                                              jax.random.PRNGKey(0)))
+    key = jax.random.PRNGKey(0)
+    _assert_highest("tracking.samcon", _lower(lambda ref, k: tracking.samcon(char, ref, k, opts).corrections, ref, key))
     # the search's result as shapes only (running the search would compile it: 10 s more)
-    result = jax.eval_shape(lambda k: tracking.samcon(char, ref, k, opts), jax.random.PRNGKey(0))
-    _assert_highest("tracking.replay", _lower(lambda r: tracking.replay(char, ref, r).window_cost, result))
+    result = jax.eval_shape(lambda ref, k: tracking.samcon(char, ref, k, opts), ref, key)
+    # replay reads the frame time in Python: that leaf concrete (as tracking_reference makes it), the rest shapes
+    timed = eqx.tree_at(lambda r: r.frame_time, ref, jnp.asarray(float(motion.frame_time), ref.frame_time.dtype))
+    shapes, concrete = eqx.partition(timed, lambda x: isinstance(x, jax.ShapeDtypeStruct))
+    _assert_highest("tracking.replay", _lower(
+        lambda shapes, r: tracking.replay(char, eqx.combine(shapes, concrete), r).window_cost, shapes, result))
     from jaxanim.tracking._feedback import _linearize
 
-    _assert_highest("tracking.linearize",
-                    _lower(lambda r: _linearize(char, ref, r.options, r.corrections, r.trajectory), result))
+    _assert_highest("tracking.linearize", _lower(
+        lambda ref, r: _linearize(char, ref, r.options, r.corrections, r.trajectory), ref, result))
 
 
 def test_robots_state_highest():
@@ -225,7 +231,10 @@ def test_robots_state_highest():
     _assert_highest("ik.solve_ik (robot)", _lower(lambda q: ik.solve_ik(g1, feet, q, regularization=1e-3).qpos, q))
     skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
     clip = jaxanim.Motion(motion.rotations[:4], motion.translations[:4], motion.frame_time)
-    problem = robots.prepare_retarget(skel, clip, g1, robots.default_mapping_path())
+    mapping = robots.load_mapping(robots.default_mapping_path())
+    # the stance frames given (every frame): their detection compiled programs of its own, and lowering needs shapes
+    contacts = np.ones((clip.num_frames, sum(bool(f) for f in mapping.feet)), bool)
+    problem = robots.prepare_retarget(skel, clip, g1, mapping, contacts=contacts)
     _assert_highest("robots.solve_retarget", jax.jit(lambda p: robots.solve_retarget(
         g1, p, robots.RetargetOptions(iterations=1)).qpos).lower(problem))
 
@@ -251,7 +260,8 @@ def _lq(n=18, m=4, T=5, dtype=jnp.float64):  # n^3 > 4096: the products are dots
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32"])
 def test_solvers_state_highest(dtype):
     """Least squares (own LM, GN, gradient descent, the optimistix and jaxopt adapters; their implicit
-    derivative), LQR and its derivative, DARE, CARE, iLQR, DDP, box-DDP and MPC on the problem library."""
+    derivative), LQR and its derivative, DARE, CARE, iLQR, DDP, box-DDP and MPC on the problem library. A
+    kernel and its derivative are one program, ``value_and_grad`` (the value is the kernel's own output)."""
     A, B, Q, R, T = _lq(dtype=dtype)
     n, m = B.shape
 
@@ -267,16 +277,15 @@ def test_solvers_state_highest(dtype):
                 solvers.JaxoptSolver("LevenbergMarquardt"))
     for solver in own + adapters:
         ls = lambda a, solver=solver: solvers.least_squares(residual, solver, y0, jnp.asarray(a, dtype)).value  # noqa: E731
-        _assert_highest(f"least_squares {type(solver).__name__}", _lower(ls, jnp.asarray(1.0, dtype)), at_least=0)
-        _assert_highest(f"grad of least_squares {type(solver).__name__}",
-                        _lower(jax.grad(lambda a, ls=ls: jnp.sum(ls(a))), jnp.asarray(1.0, dtype)), at_least=0)
+        _assert_highest(f"least_squares {type(solver).__name__} and its grad",
+                        _lower(jax.value_and_grad(lambda a, ls=ls: jnp.sum(ls(a))), jnp.asarray(1.0, dtype)),
+                        at_least=0)
     As, Bs = jnp.broadcast_to(A, (T, n, n)), jnp.broadcast_to(B, (T, n, m))
     Qs, Rs = jnp.broadcast_to(Q, (T, n, n)), jnp.broadcast_to(R, (T, m, m))
     x0 = jnp.ones(n, dtype)
-    _assert_highest("lqr", _lower(lambda A: solvers.lqr(A, Bs, Qs, Rs, Q, x0).us, As))
-    _assert_highest("grad of lqr", _lower(jax.grad(lambda A: jnp.sum(solvers.lqr(A, Bs, Qs, Rs, Q, x0).us)), As))
-    _assert_highest("dare", _lower(lambda A: solvers.dare(A, B, Q, R).P, A))
-    _assert_highest("grad of dare", _lower(jax.grad(lambda A: jnp.sum(solvers.dare(A, B, Q, R).P)), A))
+    _assert_highest("lqr and its grad",
+                    _lower(jax.value_and_grad(lambda A: jnp.sum(solvers.lqr(A, Bs, Qs, Rs, Q, x0).us)), As))
+    _assert_highest("dare and its grad", _lower(jax.value_and_grad(lambda A: jnp.sum(solvers.dare(A, B, Q, R).P)), A))
     _assert_highest("care", _lower(lambda A: solvers.care(A - 2 * jnp.eye(n, dtype=dtype), B, Q, R).P, A))
     for name in ("cart_pole", "acrobot", "unicycle", "pendulum", "double_integrator"):
         p = getattr(solvers.problems, name)(T=5, dtype=dtype)

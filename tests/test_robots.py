@@ -328,11 +328,16 @@ _TINY = """<mujoco model="tiny">
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    """``(robot, mj_model, qs)``: the tiny model and random configurations (quaternions not unit)."""
+def tiny_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("tiny") / "tiny.xml"
     path.write_text(_TINY)
-    robot = robots.load_robot(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny(tiny_path):
+    """``(robot, mj_model, qs)``: the tiny model and random configurations (quaternions not unit)."""
+    robot = robots.load_robot(tiny_path)
     m = mujoco.MjModel.from_xml_string(_TINY)
     rng = np.random.default_rng(7)
     qs = np.tile(m.qpos0, (5, 1))
@@ -346,6 +351,25 @@ def tiny(tmp_path_factory):
             else:
                 qs[n, a] = rng.uniform(-2, 2)
     return robot, m, qs
+
+
+def _frames(robot) -> tuple[str, ...]:
+    """Every body but the world, then every site: the frames whose Jacobians the tiny model's tests take, in one
+    call (one compiled program, batched or not, shared by the tests below)."""
+    return tuple(robot.body_names[1:]) + tuple(robot.site_names)
+
+
+@pytest.fixture(scope="module")
+def tiny_batched(tiny):
+    """Our values on the tiny model's configurations, batched by ``vmap``, as one compiled program: FK, the
+    Jacobians of :func:`_frames`, the centre of mass and the base's subtree centre of mass."""
+    robot, _, qs = tiny
+
+    def one(q):
+        return (robots.forward_kinematics(robot, q), robots.jacobian(robot, q, _frames(robot)),
+                robots.center_of_mass(robot, q), robots.center_of_mass(robot, q, body="base"))
+
+    return jax.device_get(jax.jit(jax.vmap(one))(qs))
 
 
 def _mujoco_all(m, q, bodies, sites):
@@ -362,15 +386,14 @@ def _mujoco_all(m, q, bodies, sites):
     return d, np.array(jb), np.array(js)
 
 
-def test_ball_slide_and_multi_joint_bodies_match_live_mujoco(tiny):
+def test_ball_slide_and_multi_joint_bodies_match_live_mujoco(tiny, tiny_batched):
     robot, m, qs = tiny
     assert robot.jnt_types == ("free", "hinge", "ball", "slide", "hinge", "hinge", "hinge")
     assert robot.jnt_limited == (False, False, False, True, False, True, False)
-    body_names = tuple(robot.body_names[1:])
-    out = jax.device_get(_program(robot, body_names, tuple(robot.site_names))(qs))
-    fk, (jacp, jacr), (sjacp, sjacr), com = out
+    fk, (jacp, jacr), com, com_base = tiny_batched
+    nb = robot.num_bodies - 1  # the Jacobians' rows: the bodies, then the sites
+    (jacp, sjacp), (jacr, sjacr) = (jacp[:, :nb], jacp[:, nb:]), (jacr[:, :nb], jacr[:, nb:])
     base = robot.body_index("base")
-    com_base = jax.device_get(jax.vmap(lambda q: robots.center_of_mass(robot, q, body="base"))(qs))
     for n, q in enumerate(qs):
         d, jb, js = _mujoco_all(m, q, range(1, m.nbody), range(m.nsite))
         assert_close(f"xpos[{n}]", fk.xpos[n], d.xpos, atol=_ATOL_F64)
@@ -387,14 +410,16 @@ def test_ball_slide_and_multi_joint_bodies_match_live_mujoco(tiny):
 
 
 @pytest.mark.parametrize("fn", ["forward_kinematics", "jacobian", "center_of_mass"])
-def test_vmap_equals_a_python_loop(tiny, fn):
+def test_vmap_equals_a_python_loop(tiny, tiny_batched, fn):
+    """The batched values are ``tiny_batched``'s (``vmap`` of the three, one program); each call of the loop
+    is the unbatched program, which the tests below reuse."""
     robot, _, qs = tiny
-    call = {
-        "forward_kinematics": lambda q: robots.forward_kinematics(robot, q),
-        "jacobian": lambda q: robots.jacobian(robot, q, ["tip", "arm", "fixed_tip"]),
-        "center_of_mass": lambda q: robots.center_of_mass(robot, q),
+    k, call = {
+        "forward_kinematics": (0, lambda q: robots.forward_kinematics(robot, q)),
+        "jacobian": (1, lambda q: robots.jacobian(robot, q, _frames(robot))),  # bodies and sites in one call
+        "center_of_mass": (2, lambda q: robots.center_of_mass(robot, q)),
     }[fn]
-    batched = jax.vmap(call)(jnp.asarray(qs))
+    batched = tiny_batched[k]
     looped = [call(q) for q in qs]
     for n, single in enumerate(looped):
         for b, s in zip(jax.tree.leaves(batched), jax.tree.leaves(single), strict=True):
@@ -402,15 +427,20 @@ def test_vmap_equals_a_python_loop(tiny, fn):
 
 
 def test_jacobian_columns_are_derivatives_of_the_positions(tiny):
-    """``jacfwd`` of the site positions along each hinge and slide coordinate and the free joint's
-    position equals that column of ``jacp``; the derivative is finite at ``qpos0`` (identity
-    quaternions)."""
+    """``jacfwd`` of the body and site positions along each hinge and slide coordinate and the free
+    joint's position equals that column of ``jacp``; the derivative is finite at ``qpos0`` (identity
+    quaternions). One compiled ``jacfwd`` (eager, it compiled its ops one by one)."""
     robot, _, qs = tiny
-    sites = list(robot.site_names)
+
+    @jax.jit
+    def dpositions(q):  # [bodies + sites, 3, nq], the rows of _frames
+        return jax.jacfwd(lambda q: (lambda fk: jnp.concatenate([fk.xpos[1:], fk.site_xpos]))(
+            robots.forward_kinematics(robot, q)))(q)
+
     for q in (jnp.asarray(qs[0]), robot.qpos0):
-        dpos = jax.jacfwd(lambda q: robots.forward_kinematics(robot, q).site_xpos)(q)  # [sites, 3, nq]
-        assert np.all(np.isfinite(dpos)), "d site_xpos / d qpos: not finite"
-        jacp, _ = robots.jacobian(robot, q, sites)
+        dpos = np.asarray(dpositions(q))
+        assert np.all(np.isfinite(dpos)), "d xpos, site_xpos / d qpos: not finite"
+        jacp, _ = jax.device_get(robots.jacobian(robot, q, _frames(robot)))
         for j, t in enumerate(robot.jnt_types):
             a, d = robot.jnt_qposadr[j], robot.jnt_dofadr[j]
             n = {"hinge": 1, "slide": 1, "free": 3}.get(t, 0)
@@ -418,21 +448,22 @@ def test_jacobian_columns_are_derivatives_of_the_positions(tiny):
                 assert_close(f"jacp[{robot.jnt_names[j]}]", jacp[..., d : d + n], dpos[..., a : a + n], atol=1e-12)
 
 
-def test_compiles_once_per_robot_structure():
-    """New qpos values, and a robot loaded again from the same file, reuse the compiled programs."""
-    robot, ref, _ = _mjcf("g1")
+def test_compiles_once_per_robot_structure(tiny, tiny_path):
+    """New qpos values, and a robot loaded again from the same file, reuse the compiled programs (the tiny
+    model's, which the tests above compiled: on the G1 the three programs took 2.8 s to compile)."""
+    robot, _, qs = tiny
     calls = (
         lambda r, q: robots.forward_kinematics(r, q),
-        lambda r, q: robots.jacobian(r, q, ["left_foot", "pelvis"]),
+        lambda r, q: robots.jacobian(r, q, _frames(r)),
         lambda r, q: robots.center_of_mass(r, q),
     )
     for f in calls:
-        jax.block_until_ready(f(robot, ref["qpos"][0]))
-    again = robots.load_robot(_ROBOTS / MJCF["g1"])
+        jax.block_until_ready(f(robot, qs[0]))
+    again = robots.load_robot(tiny_path)
     with count_traces() as traces:
         for f in calls:
-            jax.block_until_ready(f(robot, ref["qpos"][1]))
-            jax.block_until_ready(f(again, jnp.asarray(ref["qpos"][2])))
+            jax.block_until_ready(f(robot, qs[1]))
+            jax.block_until_ready(f(again, jnp.asarray(qs[2])))
     assert traces == [0], f"retraced {traces[0]} times"
 
 
