@@ -61,8 +61,13 @@ def test_gpu_without_accelerator_runs_the_small_sizes_within_budgets(tmp_path, c
 
 def test_gpu_with_an_accelerator_selects_the_accelerator_profile(tmp_path, monkeypatch, capsys):
     """With an accelerator (JAX's backend faked here; ``--batches`` keeps the run small) ``--gpu`` takes the
-    accelerator settings and says so in the report."""
+    accelerator settings and says so in the report. Other processes' CPU share reads as 0 here: a full run (no
+    ``--quick``) runs a section again when they kept the cores busy, as the suite's other worker does, which
+    compiled its FK twice more (2.3 s); that rerun has its own test below."""
+    import benchmarks
+
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    monkeypatch.setattr(benchmarks, "_others", lambda *a: 0.0)
     out = tmp_path / "BENCHMARKS.md"
     assert main(["--gpu", "fk", "--batches", "2", "--dtype", "float64", "--only", "numpy", "--out", str(out),
                  "--data-dir", str(shared_data_dir()), "--quiet"]) == 0
@@ -76,7 +81,9 @@ def test_gpu_with_an_accelerator_selects_the_accelerator_profile(tmp_path, monke
 
 def test_a_failing_section_loses_only_itself(tmp_path, monkeypatch):
     """The report is on disk after the first section and after each row of the next; a section that raises
-    keeps the rows it finished, ends with a failed table, and the section after it still runs."""
+    keeps the rows it finished, ends with a failed table, and the section after it still runs. The first section,
+    ``fk``, finds no data (a skipped table, written like any other): with the data it compiled two FK programs
+    (2 s) that nothing here checks."""
     out = tmp_path / "BENCHMARKS.md"
     seen = {}
 
@@ -89,9 +96,10 @@ def test_a_failing_section_loses_only_itself(tmp_path, monkeypatch):
 
     monkeypatch.setitem(REGISTRY, "boom", types.SimpleNamespace(name="boom", description="raises", load=lambda: boom))
     status = main(["fk", "boom", "skinning", "--quick", "--dtype", "float64", "--batches", "1", "--only", "numpy*",
-                   "--out", str(out), "--data-dir", str(shared_data_dir()), "--quiet"])
+                   "--out", str(out), "--data-dir", str(tmp_path / "nowhere"), "--quiet"])
     assert status == 0
     assert "## Forward kinematics" in seen["after fk"] and "Boom" not in seen["after fk"]
+    assert "cmu_01_01_trim300.bvh not found" in seen["after fk"]
     assert "## Boom table" in seen["after a row"] and "Section `boom` was still running" in seen["after a row"]
     text = out.read_text(encoding="utf-8")
     assert [r[0] for r in _rows(text, "Boom table")] == ["numpy (fake)"]

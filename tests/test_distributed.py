@@ -40,7 +40,7 @@ _WORKER = textwrap.dedent(
     from jax.experimental.multihost_utils import process_allgather
     import jaxanim, solvers
     from benchmarks.oc import make_dare_systems
-    from tests.helpers import random_pose, small_skeleton
+    from tests.helpers import small_skeleton
 
     assert jax.process_count() == 2 and jax.local_device_count() == local, (jax.process_count(), jax.devices())
     assert jax.device_count() == 2 * local, jax.devices()
@@ -60,24 +60,32 @@ _WORKER = textwrap.dedent(
     skel = small_skeleton()
     B = 8 * local
     fk = jax.jit(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)))
-    check("forward_kinematics", fk, (skel,), random_pose(skel, 0, n=B), B)
+    # a random batch of poses, drawn in NumPy (tests.helpers.random_pose dispatches its rotations
+    # op by op: a dozen small programs to compile in each process)
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(B, skel.num_joints, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    t = np.asarray(skel.offsets) + 0.1 * rng.normal(size=(B, skel.num_joints, 3))
+    check("forward_kinematics", fk, (skel,), (q, t), B)
     dare = jax.jit(jax.vmap(lambda A, B, Q, R: solvers.dare(A, B, Q, R)))
     check("dare", dare, (), make_dare_systems(B, 3, 2), B)
-    # slices of different sizes (3 and 2 rows): refused, or with pad=True each padded to the same
-    # size after its own rows (3 rows, 4 with 2 devices a process)
-    q, t = random_pose(skel, 1, n=5)
-    mine = (q[:3], t[:3]) if pid == 0 else (q[3:], t[3:])
+    # slices of different sizes (B/2 - 1 and B/2 - 2 rows of the batch above): refused, or with
+    # pad=True each padded to the same size after its own rows (B/2 - 1 rows, B/2 with 2 devices a
+    # process): the global batch of the checks above, so both FK programs are reused, not compiled
+    k0, k1 = B // 2 - 1, B // 2 - 2
+    mine = (q[:k0], t[:k0]) if pid == 0 else (q[k0:k0 + k1], t[k0:k0 + k1])
     try:
         jaxanim.shard_batch(mine)
     except ValueError as e:
-        assert "the processes passed [3, 2]" in str(e), e
+        assert f"the processes passed [{k0}, {k1}]" in str(e), e
     else:
         raise AssertionError("unequal slices without pad: expected ValueError")
     qs, ts = jaxanim.shard_batch(mine, pad=True)
     n = qs.shape[0] // 2
-    assert n == (3 if local == 1 else 4), qs.shape
+    assert n == (k0 if local == 1 else B // 2), qs.shape
     got = process_allgather(fk(skel, qs, ts).positions, tiled=True)
-    np.testing.assert_array_equal(np.concatenate([got[:3], got[n:n + 2]]), np.asarray(fk(skel, q, t).positions),
+    want = np.asarray(fk(skel, q, t).positions)[:k0 + k1]
+    np.testing.assert_array_equal(np.concatenate([got[:k0], got[n:n + k1]]), want,
                                   err_msg="pad=True: each process's rows at the start of its part")
     print("DISTRIBUTED-OK", json.dumps({"process": pid, "devices": jax.device_count()}))
     jax.distributed.shutdown()
