@@ -137,26 +137,47 @@ def _pd_controller(state, step, args):
     return dict(joint_torque=control.pd_joint_torques(model.joints, state, targets, jnp.full(3, kp), jnp.full(3, kd)))
 
 
+# The rollouts of the two tests below: one batch of characters under explicit PD, soft and stiff gains, 240 steps
+# (2 s) recorded every 20, vmapped once, and characters of it rolled out alone with the same (unbatched) program.
+# The batch is larger than ROLLOUT_LANES (one full chunk and a padded one). Sharing it saves two of the four rollout
+# compilations the two tests had with their own step counts and batch sizes (~5 s of their ~11 s).
+_SWEEP_STEPS, _SWEEP_EVERY = 240, 20
+
+
+def _sweep_rollout(kp, kd, state=None):
+    model, state0, _ = _chain()
+    return physics.rollout(model, state0 if state is None else state, 1 / 120, _SWEEP_STEPS, record_every=_SWEEP_EVERY,
+                           controller=_pd_controller, controller_args=(kp, kd))
+
+
+@functools.lru_cache(maxsize=None)
+def _gain_sweep():
+    """``(kp, kd, runs)``: the vmapped rollouts; every fifth character (from index 3) stiff (k_p = 300, k_d = 10:
+    unstable at 120 Hz), the others soft (k_p from 2 to 20, k_d = 0.5: stable)."""
+    from jaxanim.physics._rollout import ROLLOUT_LANES
+
+    count = ROLLOUT_LANES + 6
+    kp = jnp.asarray(np.where(np.arange(count) % 5 == 3, 300.0, np.linspace(2.0, 20.0, count)))
+    kd = jnp.asarray(np.where(np.arange(count) % 5 == 3, 10.0, 0.5))
+    return kp, kd, jax.vmap(_sweep_rollout)(kp, kd)
+
+
 def test_rollout_stops_a_blown_up_character_and_vmap_sweeps_gains():
+    kp, kd, runs = _gain_sweep()
     model, state, _ = _chain()
-    gains = (jnp.asarray([2.0, 300.0]), jnp.asarray([0.5, 10.0]))  # soft (stable at 120 Hz), stiff (not)
-    sweep = jax.vmap(lambda kp, kd: physics.rollout(model, state, 1 / 120, 240, record_every=240,
-                                                    controller=_pd_controller, controller_args=(kp, kd)))
-    runs = sweep(*gains)
+    soft, stiff = 0, 3
+    assert (float(kp[soft]), float(kd[soft]), float(kp[stiff]), float(kd[stiff])) == (2.0, 0.5, 300.0, 10.0)
     codes = np.asarray(runs.result._value)
-    assert codes[0] == physics.SimResult.successful._value and int(runs.num_steps[0]) == 240
-    assert codes[1] == physics.SimResult.exploded._value and int(runs.num_steps[1]) < 240
+    assert codes[soft] == physics.SimResult.successful._value and int(runs.num_steps[soft]) == _SWEEP_STEPS
+    assert codes[stiff] == physics.SimResult.exploded._value and int(runs.num_steps[stiff]) < _SWEEP_STEPS
     assert np.all(np.isfinite(np.asarray(runs.final.position)))  # stopped at its last good state
-    assert np.max(np.abs(np.asarray(runs.final.linear_velocity[1]))) <= 1e3
-    for i in range(2):  # vmap = loop
-        one = physics.rollout(model, state, 1 / 120, 240, record_every=240, controller=_pd_controller,
-                              controller_args=(gains[0][i], gains[1][i]))
+    assert np.max(np.abs(np.asarray(runs.final.linear_velocity[stiff]))) <= 1e3
+    for i in (soft, stiff):  # vmap = loop
+        one = _sweep_rollout(kp[i], kd[i])
         assert int(one.result._value) == codes[i] and int(one.num_steps) == int(runs.num_steps[i])
         np.testing.assert_allclose(one.final.position, runs.final.position[i], atol=1e-9)
     # A NaN state is reported, not propagated.
-    bad = _with_nan(state)  # the soft gains' rollout above (the same compiled program)
-    run = physics.rollout(model, bad, 1 / 120, 240, record_every=240, controller=_pd_controller,
-                          controller_args=(gains[0][0], gains[1][0]))
+    run = _sweep_rollout(kp[soft], kd[soft], _with_nan(state))  # the loop's compiled program above
     assert run.result == physics.SimResult.nonfinite and int(run.num_steps) == 0
 
 
@@ -166,17 +187,14 @@ def test_a_batch_past_the_rollout_chunk_equals_one_rollout_at_a_time():
     from jaxanim.physics._rollout import ROLLOUT_LANES
 
     model, state, _ = _chain()
-    count = ROLLOUT_LANES + 6  # one full chunk and a padded one
-    kp = jnp.asarray(np.where(np.arange(count) % 5 == 3, 300.0, np.linspace(1.0, 20.0, count)))  # some stiff
-    kd = jnp.asarray(np.where(np.arange(count) % 5 == 3, 10.0, 0.5))
-    runs = jax.vmap(lambda kp, kd: physics.rollout(model, state, 1 / 120, 60, record_every=20,
-                                                   controller=_pd_controller, controller_args=(kp, kd)))(kp, kd)
-    assert runs.trajectory.position.shape == (count, 3) + state.position.shape
+    kp, kd, runs = _gain_sweep()
+    count = kp.shape[0]
+    assert count > ROLLOUT_LANES and count % ROLLOUT_LANES  # one full chunk and a padded one
+    assert runs.trajectory.position.shape == (count, _SWEEP_STEPS // _SWEEP_EVERY) + state.position.shape
     codes = np.asarray(runs.result._value)
     assert 0 < np.sum(codes == physics.SimResult.exploded._value) < count
     for i in (0, 3, ROLLOUT_LANES - 1, ROLLOUT_LANES, count - 2, count - 1):
-        one = physics.rollout(model, state, 1 / 120, 60, record_every=20, controller=_pd_controller,
-                              controller_args=(kp[i], kd[i]))
+        one = _sweep_rollout(kp[i], kd[i])
         assert int(one.result._value) == codes[i] and int(one.num_steps) == int(runs.num_steps[i])
         np.testing.assert_allclose(one.trajectory.position, runs.trajectory.position[i], rtol=1e-12, atol=1e-12)
 

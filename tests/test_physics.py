@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxanim import JaxanimError, joints, physics, rigid
+from jaxanim import JaxanimError, _linalg, joints, physics, rigid
 from jaxanim import rotations as rot
 
 _DRIFT_TOL = 1e-4  # acceptance: joint separation over 10 s at dt = 1/600, meters
@@ -157,19 +157,30 @@ def test_joint_torques_are_internal():
     assert spin[1] > 0.05 and spin[0] < -0.05, f"torque +tau on the child, -tau on the parent: {spin}"
 
 
-def test_step_vmap_equals_loop():
+def _pendulum_step(torque):
+    """One step of the double pendulum with joint torques ``[2, 3]``: the function jitted by the two tests below."""
     model, state = _double_pendulum()
-    rng = np.random.default_rng(1)
-    torques = jnp.asarray(rng.standard_normal((3, 2, 3)))
-    def one(tau):
-        return physics.step(model, state, 1 / 600, joint_torque=tau)
+    return physics.step(model, state, 1 / 600, joint_torque=torque)
 
-    # jitted, the vmap and the single step (eager, each op would compile on its own)
-    batched = jax.jit(jax.vmap(one))(torques)
-    one = jax.jit(one)
+
+# jaxanim._linalg.jit's jit with the classic emitters set explicitly (whatever the jaxlib version). Module-level, so
+# that the vmap and the loop of test_step_vmap_equals_loop are the compiler-option test's "vmap" and "direct"
+# programs (2 compilations, ~2 s, fewer).
+_classic_step = _linalg._jit_with({_linalg._FLAG: False}, _pendulum_step)
+_TORQUES = np.random.default_rng(1).standard_normal((3, 2, 3))
+_FIELDS = ("position", "orientation", "linear_velocity", "angular_velocity")
+
+
+def _unstack(batched):
+    return [jax.tree.map(lambda x, i=i: x[i], batched) for i in range(_TORQUES.shape[0])]
+
+
+def test_step_vmap_equals_loop():
+    torques = jnp.asarray(_TORQUES)
+    batched = jax.vmap(_classic_step)(torques)  # eager vmap and single steps: one program each (the jit's)
     for i in range(3):
-        single = one(torques[i])
-        for name in ("position", "orientation", "linear_velocity", "angular_velocity"):
+        single = _classic_step(torques[i])
+        for name in _FIELDS:
             np.testing.assert_allclose(getattr(batched, name)[i], getattr(single, name), atol=1e-13, err_msg=name)
 
 
@@ -204,36 +215,37 @@ def test_the_simulators_compiler_option_gives_the_same_steps_under_every_transfo
     names the flag, as this suite's does) where they are the program's top level, directly or under an eager vmap
     or jvp, and as plain jits under a caller's jax.jit or grad (which reject compiler options on a nested jit).
     A step of the double pendulum is the one of XLA's default emitters, to round-off, in every case."""
-    from jaxanim import _linalg
-
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
     assert _linalg._options() == {}
     monkeypatch.delenv("XLA_FLAGS")
     if tuple(jax.__version_info__[:2]) == (0, 10):
         assert _linalg._options() == {_linalg._FLAG: False}
-    model, state = _double_pendulum()
-
-    def final(torque):  # one step with joint torques [2, 3]
-        return physics.step(model, state, 1 / 600, joint_torque=torque).angular_velocity
-
-    classic = _linalg._jit_with({_linalg._FLAG: False}, final)
-    default = jax.jit(final, compiler_options={_linalg._FLAG: True})
-    tau = jnp.asarray(np.random.default_rng(3).standard_normal((2, 2, 3)))
+    classic = _classic_step
+    default = jax.jit(_pendulum_step, compiler_options={_linalg._FLAG: True})
+    tau = jnp.asarray(_TORQUES)
     programs = classic.lower(tau[0]).compile().compiled, default.lower(tau[0]).compile()
     assert programs[0].as_text() != programs[1].as_text()  # the option reaches XLA
     seen = []
     monkeypatch.setattr(_linalg, "_top_level", lambda real=_linalg._top_level: seen.append(real()) or seen[-1])
     expected = [default(t) for t in tau]
+
+    def aux(t):  # the step's states as the auxiliary output of the gradient of a sum
+        s = classic(t)
+        return jnp.sum(s.angular_velocity), s
+
     runs = {
         "direct": lambda: [classic(t) for t in tau],
-        "vmap": lambda: list(jax.vmap(classic)(tau)),
+        "vmap": lambda: _unstack(jax.vmap(classic)(tau)),
         "jvp": lambda: [jax.jvp(classic, (t,), (jnp.ones_like(t),))[0] for t in tau],
-        "jit": lambda: list(jax.jit(jax.vmap(classic))(tau)),
-        "grad": lambda: [jax.grad(lambda t: (lambda o: (jnp.sum(o), o))(classic(t)), has_aux=True)(t)[1] for t in tau],
+        "jit": lambda: _unstack(jax.jit(jax.vmap(classic))(tau)),
+        "grad": lambda: [jax.grad(aux, has_aux=True)(t)[1] for t in tau],
     }
     for name, run in runs.items():
         seen.clear()
         got = run()
         assert seen and all(seen) == (name in ("direct", "vmap", "jvp")), (name, seen)
+        assert len(got) == len(expected), name
         for g, e in zip(got, expected):
-            np.testing.assert_allclose(np.asarray(g), np.asarray(e), rtol=0, atol=1e-12, err_msg=name)
+            for field in _FIELDS:
+                np.testing.assert_allclose(np.asarray(getattr(g, field)), np.asarray(getattr(e, field)), rtol=0,
+                                           atol=1e-12, err_msg=f"{name}: {field}")

@@ -147,7 +147,8 @@ def test_bounded_stable_pd_stays_within_its_bounds_at_120_hz():
     peak = np.asarray(_run(limit, 120)[1])
     assert np.all(peak <= limit * (1 + 1e-9)), peak
     assert peak[0] == pytest.approx(25.0, rel=1e-9)  # saturated, at the bound
-    assert np.all(np.asarray(_run(jnp.full(3, jnp.inf), 120)[1]) > 2 * limit)  # the bounds mattered
+    # np.full, not jnp.full: a weakly typed bound would compile the rollout a second time (2.8 s)
+    assert np.all(np.asarray(_run(np.full(3, np.inf), 120)[1]) > 2 * limit)  # the bounds mattered
 
 
 def test_bounded_stable_pd_converges_to_clipped_explicit_pd():
