@@ -111,6 +111,12 @@ def _unicycle_ref():
     return next(p for p in refs["problems"] if p["model"] == "unicycle")
 
 
+# The reference problem is the one of the batching tests below (T = 20, x0 = (-1, -1, 1), dt = 0.1,
+# weights 10 / 1): solved with their max_steps (it converges in 9 iterations), iLQR's compiled
+# solve is theirs (one iLQR program fewer, ~1.4 s of compilation).
+_MAX_STEPS = 40
+
+
 @pytest.mark.parametrize("name", ["ilqr", "ddp"])
 def test_unicycle_matches_crocoddyl(name):
     ref = _unicycle_ref()
@@ -122,6 +128,7 @@ def test_unicycle_matches_crocoddyl(name):
         jnp.zeros((ref["T"], 2)),
         terminal_cost=_unicycle_terminal,
         args=args,
+        max_steps=_MAX_STEPS,
     )
     assert sol.result == RESULTS.successful, RESULTS[sol.result]
     np.testing.assert_allclose(sol.cost, ref["optimal_cost"], rtol=_RTOL_COST_REF, err_msg=f"{name}: cost")
@@ -152,7 +159,7 @@ def test_unicycle_matches_live_crocoddyl():
     assert ddp.solve([], [], 100), "crocoddyl: not converged"
     sol = solvers.ilqr(
         _unicycle_dynamics, _unicycle_cost, jnp.asarray(x0), jnp.zeros((ref["T"], 2)),
-        terminal_cost=_unicycle_terminal, args=_unicycle_args(ref["dt"], ref["cost_weights"]),
+        terminal_cost=_unicycle_terminal, args=_unicycle_args(ref["dt"], ref["cost_weights"]), max_steps=_MAX_STEPS,
     )
     np.testing.assert_allclose(sol.cost, ddp.cost, rtol=_RTOL_COST_REF, err_msg="cost")
     np.testing.assert_allclose(sol.xs, np.asarray(ddp.xs), atol=_ATOL_TRAJ_REF, rtol=0, err_msg="xs")
@@ -167,12 +174,12 @@ def test_second_eager_call_does_not_retrace(name):
     solve = SOLVERS[name]
     kw = dict(terminal_cost=_unicycle_terminal)
     first = solve(_unicycle_dynamics, _unicycle_cost, jnp.asarray(ref["x0"]), jnp.zeros((ref["T"], 2)),
-                  args=_unicycle_args(ref["dt"], ref["cost_weights"]), **kw)
+                  args=_unicycle_args(ref["dt"], ref["cost_weights"]), max_steps=_MAX_STEPS, **kw)
     x0, us0 = jnp.asarray(ref["x0"]) * 0.5, jnp.asarray(np.full((ref["T"], 2), 0.1))
     args = _unicycle_args(ref["dt"], (5.0, 2.0))
-    options = solvers.ILQROptions(max_steps=100, atol=1e-12)
+    options = solvers.ILQROptions(max_steps=_MAX_STEPS, atol=1e-12)
     with count_traces() as traces:
-        second = solve(_unicycle_dynamics, _unicycle_cost, x0, us0, args=args, **kw)
+        second = solve(_unicycle_dynamics, _unicycle_cost, x0, us0, args=args, max_steps=_MAX_STEPS, **kw)
         third = solve(_unicycle_dynamics, _unicycle_cost, x0, us0, args=args, options=options, **kw)
     assert traces[0] == 0, f"{name}: {traces[0]} traces on the second call"
     assert first.result == second.result == RESULTS.successful
@@ -189,7 +196,7 @@ def test_second_eager_call_does_not_retrace(name):
 _T_SMALL = 20
 
 
-def _solve_unicycle(x0, fixed_steps=False, max_steps=40):
+def _solve_unicycle(x0, fixed_steps=False, max_steps=_MAX_STEPS):
     return solvers.ilqr(
         _unicycle_dynamics,
         _unicycle_cost,
@@ -341,25 +348,34 @@ def _nc_terminal(x, a):
     return 5.0 * x @ x
 
 
-@pytest.mark.parametrize("name", ["ilqr", "ddp"])
-def test_cost_not_convex_in_u_is_regularised(name):
-    T = 10
-    x0 = jnp.array([1.0, -0.5])
-    sol = SOLVERS[name](_nc_dynamics, _nc_cost, x0, jnp.zeros((T, 1)), terminal_cost=_nc_terminal, max_steps=100)
-    assert sol.result == RESULTS.successful, RESULTS[sol.result]
-    assert np.all(np.isfinite(np.asarray(sol.us))) and np.isfinite(float(sol.cost))
-    assert float(sol.cost) < float(sol.stats["cost_history"][0])
+_NC_T = 10
+_NC_X0 = np.array([1.0, -0.5])
+
+
+@jax.jit
+def _nc_local_minimum_check(us):
+    """``(total cost, max |gradient|, min Hessian eigenvalue)`` of the single-shooting cost at ``us``
+    [T], in one program shared by both solvers (eager, the derivatives of the scan compile op by op)."""
 
     def total(us):
         def step(x, ut):
             return _nc_dynamics(x, ut[0], ut[1], None), _nc_cost(x, ut[0], ut[1], None)
 
-        xT, costs = jax.lax.scan(step, x0, (us.reshape(T, 1), jnp.arange(T)))
+        xT, costs = jax.lax.scan(step, jnp.asarray(_NC_X0), (us.reshape(_NC_T, 1), jnp.arange(_NC_T)))
         return jnp.sum(costs) + _nc_terminal(xT, None)
 
-    # A local minimum of the single-shooting cost: zero gradient, positive-definite Hessian (each
-    # jitted: eager, the derivatives of the scan compile op by op).
-    us = sol.us.ravel()
-    np.testing.assert_allclose(jax.jit(total)(us), sol.cost, rtol=1e-12)
-    assert float(np.max(np.abs(np.asarray(jax.jit(jax.grad(total))(us))))) < 1e-4
-    assert float(np.min(np.asarray(jax.jit(lambda u: jnp.linalg.eigvalsh(jax.hessian(total)(u)))(us)))) > 0
+    return total(us), jnp.max(jnp.abs(jax.grad(total)(us))), jnp.min(jnp.linalg.eigvalsh(jax.hessian(total)(us)))
+
+
+@pytest.mark.parametrize("name", ["ilqr", "ddp"])
+def test_cost_not_convex_in_u_is_regularised(name):
+    x0 = jnp.asarray(_NC_X0)
+    sol = SOLVERS[name](_nc_dynamics, _nc_cost, x0, jnp.zeros((_NC_T, 1)), terminal_cost=_nc_terminal, max_steps=100)
+    assert sol.result == RESULTS.successful, RESULTS[sol.result]
+    assert np.all(np.isfinite(np.asarray(sol.us))) and np.isfinite(float(sol.cost))
+    assert float(sol.cost) < float(sol.stats["cost_history"][0])
+    # A local minimum of the single-shooting cost: zero gradient, positive-definite Hessian.
+    total, grad_max, eig_min = _nc_local_minimum_check(sol.us.ravel())
+    np.testing.assert_allclose(total, sol.cost, rtol=1e-12)
+    assert float(grad_max) < 1e-4
+    assert float(eig_min) > 0

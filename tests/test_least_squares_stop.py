@@ -4,6 +4,7 @@ of the own solvers and of the optimistix / jaxopt adapters (against the backends
 """
 
 import dataclasses
+import functools
 import warnings
 
 import equinox as eqx
@@ -34,7 +35,6 @@ from .test_least_squares import (
     expfit,
     linear,
     rosenbrock,
-    solve,
 )
 
 # ---------------------------------------------------------------------------------------------
@@ -185,25 +185,40 @@ def test_stop_criterion_ends_the_solve_early(fixed):
 _ADAPTERS = ("optx-lm", "optx-gn", "optx-dogleg", "jaxopt-lm", "jaxopt-gn")
 
 
-def _black_box(name: str, fn, y0, max_steps: int):
-    """``(value, num_steps)`` of the backend's own entry point, configured as ``SOLVERS[name]``."""
+def _black_box(name: str, fn, y0, max_steps: tuple[int, ...]):
+    """``[(value, num_steps)]`` of the backend's own entry point, configured as ``SOLVERS[name]``, one
+    run per entry of ``max_steps``, all in one program (eager, jaxopt's ``run`` compiles its update
+    and loop separately and its bookkeeping op by op: 37 programs for one run of jaxopt-lm)."""
     adapter = SOLVERS[name]()
     if name.startswith("optx"):
-        sol = optx.least_squares(fn, adapter.solver, y0, max_steps=max_steps, throw=False)
-        return sol.value, sol.stats["num_steps"]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        import jaxopt
-    if adapter.name == "LevenbergMarquardt":
-        backend = jaxopt.LevenbergMarquardt(
-            residual_fun=fn, maxiter=max_steps, damping_parameter=adapter.damping_parameter,
-            stop_criterion="grad-l2-norm", tol=adapter.atol, solver="cholesky", materialize_jac=True,
-            implicit_diff=False,
-        )
+        def run(y0, steps):
+            sol = optx.least_squares(fn, adapter.solver, y0, max_steps=steps, throw=False)
+            return sol.value, sol.stats["num_steps"]
     else:
-        backend = jaxopt.GaussNewton(residual_fun=fn, maxiter=max_steps, tol=adapter.rtol, implicit_diff=False)
-    params, state = backend.run(y0, None)
-    return params, state.iter_num
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import jaxopt
+
+        def run(y0, steps):
+            if adapter.name == "LevenbergMarquardt":
+                backend = jaxopt.LevenbergMarquardt(
+                    residual_fun=fn, maxiter=steps, damping_parameter=adapter.damping_parameter,
+                    stop_criterion="grad-l2-norm", tol=adapter.atol, solver="cholesky", materialize_jac=True,
+                    implicit_diff=False,
+                )
+            else:
+                backend = jaxopt.GaussNewton(residual_fun=fn, maxiter=steps, tol=adapter.rtol, implicit_diff=False)
+            params, state = backend.run(y0, None)
+            return params, state.iter_num
+    return jax.jit(lambda y0: [run(y0, steps) for steps in max_steps])(y0)
+
+
+@functools.lru_cache(maxsize=None)
+def _plain(solver: str) -> solvers.Solution:
+    """The Rosenbrock problem solved by an adapter without ``stop`` (test_least_squares' ``solve``
+    solves the whole catalogue in one program: more to compile where this file runs alone)."""
+    p = PROBLEMS["rosenbrock"]
+    return least_squares(p.fn, SOLVERS[solver](), jnp.asarray(p.y0))
 
 
 def _cost_at_most(y, r, target):
@@ -221,8 +236,8 @@ def test_adapters_without_stop_equal_the_backends(solver):
     its value and step count are those of ``optx.least_squares`` / jaxopt's ``run``."""
     p = PROBLEMS["rosenbrock"]
     y0 = jnp.asarray(p.y0)
-    sol = solve("rosenbrock", solver)
-    value, num_steps = _black_box(solver, p.fn, y0, 256)
+    sol = _plain(solver)
+    [(value, num_steps)] = _black_box(solver, p.fn, y0, (256,))
     assert int(sol.stats["num_steps"]) == int(num_steps), solver
     assert_close(f"{solver}: value", sol.value, value, atol=1e-14)
 
@@ -238,11 +253,10 @@ def test_adapters_stop_at_the_first_iterate_meeting_stop(solver):
     sol = least_squares(_rosenbrock_args, SOLVERS[solver](), y0, target, stop=_cost_at_most)
     assert sol.result == RESULTS.successful, RESULTS[sol.result]
     k = int(sol.stats["num_steps"])
-    assert 1 < k < int(solve("rosenbrock", solver).stats["num_steps"]), k
+    assert 1 < k < int(_plain(solver).stats["num_steps"]), k
     assert float(sol.stats["cost"]) <= float(target)
-    at_k, _ = _black_box(solver, p.fn, y0, k)
+    (at_k, _), (before, _) = _black_box(solver, p.fn, y0, (k, k - 1))
     assert_close(f"{solver}: value after {k} steps", sol.value, at_k, atol=1e-14)
-    before, _ = _black_box(solver, p.fn, y0, k - 1)
     assert 0.5 * float(jnp.sum(p.fn(before, None) ** 2)) > float(target)
     # a stop that holds at y0 ends the solve there, before any step
     at_y0 = least_squares(_rosenbrock_args, SOLVERS[solver](), y0, jnp.asarray(1e3), stop=_cost_at_most)

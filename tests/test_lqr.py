@@ -103,6 +103,7 @@ def test_finite_horizon_matches_reference():
     sol = lqr(stack(ref["A"]), stack(ref["B"]), stack(ref["Q"]), stack(ref["R"]), np.array(ref["Qf"]),
               np.array(ref["x0"]), throw=True)
     assert sol.result == RESULTS.successful
+    sol = _to_numpy(sol)
     # The reference applies u = -K x; lqr applies u = K x + k.
     assert_close("Ks", -sol.Ks, ref["K_t"], rtol=_TOL_REF, atol=_TOL_REF)
     assert_close("ks", sol.ks, np.zeros((N, 1)), atol=_TOL_REF)
@@ -164,12 +165,18 @@ def kkt_solve(p: dict, x0: np.ndarray):
     return z[:nx].reshape(T + 1, n), z[nx:].reshape(T, m), cost, z, H, h
 
 
+def _to_numpy(sol):
+    """``sol`` with its arrays in numpy, for the checks that follow."""
+    return jax.tree.map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, sol)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_lqr_matches_dense_kkt(seed):
     p = random_lq_problem(seed)
     kw = {k: p[k] for k in ("S", "q", "r", "qT", "c")}
     sol = lqr(p["A"], p["B"], p["Q"], p["R"], p["QT"], p["x0"], **kw)
     assert sol.result == RESULTS.successful
+    sol = _to_numpy(sol)  # the arithmetic below in numpy (eager jax ops compile one program each)
     xs, us, cost, z, H, h = kkt_solve(p, p["x0"])
     assert_close("xs", sol.xs, xs, atol=_TOL_KKT, rtol=_TOL_KKT)
     assert_close("us", sol.us, us, atol=_TOL_KKT, rtol=_TOL_KKT)
@@ -337,16 +344,19 @@ def test_riccati_gradients_match_finite_differences(continuous):
         return jnp.sum(Wp * sol.P) + jnp.sum(Wk * sol.K)
 
     # each derivative jitted whole: one program apiece (eager, the AD of the jitted solve compiles its
-    # linearized and transposed parts separately, and the sums around it op by op)
-    grads = jax.jit(jax.grad(f, argnums=tuple(range(5))))(*args.values())
+    # linearized and transposed parts separately, and the sums around it op by op); the differences
+    # use the values of the gradient's program (a forward program of its own: ~0.5 s more to compile)
+    value_and_grads = jax.jit(jax.value_and_grad(f, argnums=tuple(range(5))))
+    _, grads = value_and_grads(*args.values())
     h = 1e-6
     tangents = {k: rng.normal(size=np.shape(v)) for k, v in args.items()}
-    f_jit = jax.jit(f)
+
+    def f_at(name, x):
+        return value_and_grads(*(x if k == name else v for k, v in args.items()))[0]
+
     for (name, x), g in zip(args.items(), grads):
         D = tangents[name]
-        plus = f_jit(**{**args, name: x + h * D})
-        minus = f_jit(**{**args, name: x - h * D})
-        fd = (plus - minus) / (2 * h)
+        fd = (f_at(name, x + h * D) - f_at(name, x - h * D)) / (2 * h)
         assert_close(f"grad {name}", np.vdot(g, D), fd, rtol=_TOL_GRAD, atol=_TOL_GRAD)
     if continuous:
         return
@@ -355,11 +365,11 @@ def test_riccati_gradients_match_finite_differences(continuous):
     total = sum(np.vdot(g, tangents[k]) for k, g in zip(args, grads))
     assert_close("jvp", jvp, total, rtol=1e-10, atol=1e-10)
     # second order: a Hessian-vector product in A against finite differences of the gradient
-    grad_A = jax.jit(jax.grad(f))
     rest = tuple(args.values())[1:]
+    grad_A = lambda A: value_and_grads(A, *rest)[1][0]  # noqa: E731
     _, hvp = jax.jit(lambda A, dA: jax.jvp(lambda A: jax.grad(f)(A, *rest), (A,), (dA,)))(A, tangents["A"])
     h2 = 1e-5
-    fd2 = (grad_A(A + h2 * tangents["A"], *rest) - grad_A(A - h2 * tangents["A"], *rest)) / (2 * h2)
+    fd2 = (grad_A(A + h2 * tangents["A"]) - grad_A(A - h2 * tangents["A"])) / (2 * h2)
     assert_close("hvp A", hvp, fd2, rtol=1e-6, atol=1e-6 * np.max(np.abs(fd2)))
 
 
