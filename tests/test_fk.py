@@ -39,8 +39,10 @@ def test_fk_matches_reference_every_frame_float64(stem):
 def test_fk_matches_reference_float32(stem):
     shared_data_dir()
     skel, motion, ref = shared_clip(stem)
-    skel32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), skel)
-    out = batched_fk()(skel32, motion.rotations.astype(jnp.float32), motion.translations.astype(jnp.float32))
+    # converted on the host (eager astype compiles a program per array shape)
+    skel32 = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x, np.float32)), skel)
+    q32, t32 = (jnp.asarray(np.asarray(x, np.float32)) for x in (motion.rotations, motion.translations))
+    out = batched_fk()(skel32, q32, t32)
     assert out.positions.dtype == jnp.float32
     scale = np.abs(ref["positions"]).max()
     assert_close("positions", out.positions, ref["positions"], atol=_RTOL_FK32 * scale)
@@ -82,17 +84,20 @@ def test_quaternion_and_matrix_inputs_agree():
 def test_vmap_equals_loop_and_nested_vmap():
     skel = small_skeleton()
     q, t = random_pose(skel, 1, n=6)
-    # jitted, the vmap and the single-pose FK (eager, each op would compile on its own)
+    # jitted, the vmap and the single-pose FK (eager, each op would compile on its own); the poses are
+    # sliced and reshaped on the host (eager indexing and reshapes compile a program each)
     out = batched_fk()(skel, q, t)
+    qs, ts = np.asarray(q), np.asarray(t)
+    got = {f: np.asarray(getattr(out, f)) for f in ("positions", "rotations", "end_site_positions")}
     for i in range(6):
-        one = jitted_fk(skel, q[i], t[i])
-        assert_close("positions", out.positions[i], one.positions, atol=1e-14)
-        assert_close("rotations", out.rotations[i], one.rotations, atol=1e-14)
-        assert_close("end_site_positions", out.end_site_positions[i], one.end_site_positions, atol=1e-14)
+        one = jitted_fk(skel, jnp.asarray(qs[i]), jnp.asarray(ts[i]))
+        for f, batched in got.items():
+            assert_close(f, batched[i], getattr(one, f), atol=1e-14)
     nested = jax.jit(jax.vmap(batched_fk(), in_axes=(None, 0, 0)))(
-        skel, q.reshape(2, 3, -1, 4), t.reshape(2, 3, -1, 3)
+        skel, jnp.asarray(qs.reshape(2, 3, -1, 4)), jnp.asarray(ts.reshape(2, 3, -1, 3))
     )
-    assert_close("nested positions", nested.positions.reshape(out.positions.shape), out.positions, atol=1e-14)
+    assert_close("nested positions", np.asarray(nested.positions).reshape(got["positions"].shape), got["positions"],
+                 atol=1e-14)
 
 
 def test_default_translations_are_offsets():
@@ -157,13 +162,15 @@ def test_global_to_local_inverts_fk(stem):
 
 def test_global_to_local_vmap_equals_loop_small():
     skel = small_skeleton()
-    q, t = random_pose(skel, 4, n=3)
+    q, t = random_pose(skel, 4, n=6)  # 6 poses: the batched FK of test_vmap_equals_loop_and_nested_vmap serves
     out = batched_fk()(skel, q, t)
-    # jitted, the vmap and the single-pose call (eager, each op would compile on its own)
-    qb, tb = jax.jit(jax.vmap(jaxanim.global_to_local, in_axes=(None, 0, 0)))(skel, out.rotations, out.positions)
+    # jitted, the vmap and the single-pose call (eager, each op would compile on its own); sliced on the host
+    qb, tb = (np.asarray(x) for x in jax.jit(jax.vmap(jaxanim.global_to_local, in_axes=(None, 0, 0)))(
+        skel, out.rotations, out.positions))
     one = eqx.filter_jit(jaxanim.global_to_local)
-    for i in range(3):
-        qi, ti = one(skel, out.rotations[i], out.positions[i])
+    R, P, t = np.asarray(out.rotations), np.asarray(out.positions), np.asarray(t)
+    for i in range(6):
+        qi, ti = one(skel, jnp.asarray(R[i]), jnp.asarray(P[i]))
         assert_close("rotations", qb[i], qi, atol=1e-15)
         assert_close("translations", tb[i], ti, atol=1e-15)
         assert_close("translations vs input", ti, t[i], atol=1e-12)

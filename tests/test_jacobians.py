@@ -59,19 +59,23 @@ def test_jacobian_equals_jacfwd_on_shared_skeletons(stem):
     sites = tuple(skel.end_site_names) + (skel.names[-1], skel.names[0])
     ana, ref = _jit_pair(sites)
     scale = max(float(np.abs(np.asarray(skel.offsets)).sum()), 1.0)
-    for frame in (0, motion.num_frames - 1):
-        q, t = motion.rotations[frame], motion.translations[frame]
+    rotations, translations = np.asarray(motion.rotations), np.asarray(motion.translations)
+    for frame in (0, motion.num_frames - 1):  # indexed on the host (eager indexing compiles a program each)
+        q, t = jnp.asarray(rotations[frame]), jnp.asarray(translations[frame])
         A, B = ana(skel, q, t), ref(skel, q, t)
         assert A.shape == (len(sites), 6, 3 + 3 * skel.num_joints)
         assert_close(f"{stem} frame {frame} linear", A[:, :3], B[:, :3], atol=_ATOL_JAC * scale)
         assert_close(f"{stem} frame {frame} angular", A[:, 3:], B[:, 3:], atol=_ATOL_JAC)
 
 
+_SMALL_SITES = ("head_End", "forearm_End", "leg", "arm")  # one jitted jacobian for the small skeleton's tests
+
+
 def test_jacobian_matches_jacrev_and_finite_differences():
     skel = small_skeleton()
     q, t = random_pose(skel, 7)
-    sites = ("head_End", "forearm_End", "leg", "arm")
-    A = jaxanim.jacobian(skel, q, t, sites)
+    sites = _SMALL_SITES
+    A = _jit_pair(sites)[0](skel, q, t)  # jitted (eager, its ~50 primitives compile one by one)
     B = jax.jit(lambda q, t: autodiff_jacobian(skel, q, t, sites, mode=jax.jacrev))(q, t)  # eager: op by op
     assert_close("jacrev", A, B, atol=1e-12)
     # central differences of the retraction, on the manifold
@@ -88,23 +92,21 @@ def test_jacobian_matches_jacrev_and_finite_differences():
         dR = jnp.einsum("sab,scb->sac", out_p.rotations[owner], out_m.rotations[owner])
         return jnp.concatenate([dp, rot.matrix_to_rotvec(dR) / (2 * eps)], axis=-1)  # [sites, 6]
 
-    fd = np.stack([np.asarray(central(jnp.zeros(cols).at[c].set(eps))) for c in range(cols)], axis=-1)
+    fd = np.stack([np.asarray(central(jnp.asarray(np.eye(cols)[c] * eps))) for c in range(cols)], axis=-1)
     assert_close("finite differences", A, fd, atol=1e-8)
 
 
 def test_jacobian_vmap_equals_loop():
     skel = small_skeleton()
     q, t = random_pose(skel, 8, n=4)
-    sites = ("head_End", "leg")
-
-    def one(a, b):
-        return jaxanim.jacobian(skel, a, b, sites)
-
-    # jitted, the vmap and the single call (eager, each op would compile on its own)
-    Jb = jax.jit(jax.vmap(one))(q, t)
-    one = jax.jit(one)
+    sites = _SMALL_SITES
+    # jitted, the vmap and the single call (eager, each op would compile on its own); the single call is the
+    # program test_jacobian_matches_jacrev_and_finite_differences compiled, the poses are sliced on the host
+    Jb = np.asarray(jax.jit(jax.vmap(lambda a, b: jaxanim.jacobian(skel, a, b, sites)))(q, t))
+    one = _jit_pair(sites)[0]
+    qs, ts = np.asarray(q), np.asarray(t)
     for i in range(4):
-        assert_close(f"jacobian[{i}]", Jb[i], one(q[i], t[i]), atol=1e-15)
+        assert_close(f"jacobian[{i}]", Jb[i], one(skel, jnp.asarray(qs[i]), jnp.asarray(ts[i])), atol=1e-15)
 
 
 def test_jacobian_bad_input():
@@ -119,5 +121,6 @@ def test_jacobian_bad_input():
     with pytest.raises(jaxanim.JaxanimError, match=r"delta: expected shape \(3 \+ 3 \* joints,\) = \(21,\)"):
         jaxanim.apply_increment(skel, q, t, jnp.zeros(20))
     qn = np.array(q)
-    jaxanim.jacobian(skel, q, t, ("leg",))
+    # the jitted jacobian of the tests above (the eager call compiled ~60 primitives one by one: ~1.5 s)
+    _jit_pair(_SMALL_SITES)[0](skel, q, t)
     np.testing.assert_array_equal(np.asarray(q), qn)

@@ -20,6 +20,7 @@ import pytest
 import jaxanim
 from jaxanim import matching
 from jaxanim.app import _cli as cli
+from jaxanim.kinematics._contacts import clip_positions
 
 SECONDS = 10.0
 FRAMES = 301  # 10 s at 30 fps
@@ -334,14 +335,17 @@ def test_vmap_over_agents_equals_a_loop(db):
     speeds = (1.0, 1.3, 1.1)
     inputs = [_constant(s, y) for s, y in zip(speeds, yaws)]
     loop = [matching.motion_matching(db, i, FRAMES) for i in inputs]  # the program of `straight`
-    stacked = jax.tree.map(lambda *x: jnp.stack(x), *inputs)
+    # stacked and indexed on the host (eager jnp.stack and indexing compile a small program each)
+    stacked = jax.tree.map(lambda *x: np.stack([np.asarray(a) for a in x]), *inputs)
     batched = jax.vmap(lambda inp: matching.motion_matching(db, inp, FRAMES))(stacked)
+    rows, rotations, translations = (np.asarray(x) for x in (batched.rows, batched.motion.rotations,
+                                                             batched.motion.translations))
     for k, one in enumerate(loop):
-        np.testing.assert_array_equal(np.asarray(batched.rows[k]), np.asarray(one.rows), err_msg=f"rows, agent {k}")
-        np.testing.assert_allclose(np.asarray(batched.motion.rotations[k]), np.asarray(one.motion.rotations),
-                                   atol=1e-12, err_msg=f"rotations, agent {k}")
-        np.testing.assert_allclose(np.asarray(batched.motion.translations[k]), np.asarray(one.motion.translations),
-                                   atol=1e-12, err_msg=f"translations, agent {k}")
+        np.testing.assert_array_equal(rows[k], np.asarray(one.rows), err_msg=f"rows, agent {k}")
+        np.testing.assert_allclose(rotations[k], np.asarray(one.motion.rotations), atol=1e-12,
+                                   err_msg=f"rotations, agent {k}")
+        np.testing.assert_allclose(translations[k], np.asarray(one.motion.translations), atol=1e-12,
+                                   err_msg=f"translations, agent {k}")
 
 
 def test_check_input_speed_reports_an_input_faster_than_the_database(walk, db):
@@ -387,8 +391,9 @@ def test_match_command(tmp_path, capsys):
     # the written file's feet, measured again from it: where a foot is on the ground at both ends of a
     # frame step (the cleanup's own detection on the written clip) it moves less than 1 mm per s
     feet, on = jaxanim.ik.detect_foot_contacts(skel, motion)
-    p = np.asarray(jax.vmap(lambda q, t: jaxanim.forward_kinematics(skel, q, t).positions)(
-        motion.rotations, motion.translations))[:, [skel.index(f) for f in feet]][..., [0, 2]]
+    # the clip's FK as one program: detect_foot_contacts and the command compiled it for these 301 frames
+    # (an eager vmap of FK dispatched ~45 primitives, each compiled on its own: ~1 s)
+    p = np.asarray(clip_positions(skel, motion))[:, [skel.index(f) for f in feet]][..., [0, 2]]
     speed = np.linalg.norm(np.diff(p, axis=0), axis=-1) * 30.0
     assert np.median(speed[on[1:] & on[:-1]]) < 1e-3
 
@@ -426,15 +431,17 @@ def test_match_command(tmp_path, capsys):
 
 
 def test_benchmark_reduced_run():
-    """``python -m benchmarks matching`` on a tiny database (one speed, 100 frames, + mirror) and 4 queries: the
+    """``python -m benchmarks matching`` on a tiny database (one speed, 120 frames, + mirror) and 4 queries: the
     rows, their accuracy and the peers' presence; timings are not checked. The crowd table (a batched
-    controller: test_vmap_over_agents_equals_a_loop runs one) is left out: its compile alone takes ~10 s."""
+    controller: test_vmap_over_agents_equals_a_loop runs one) is left out: its compile alone takes ~10 s.
+    120 frames is the shipped walk's length: the database's batched FK, facing frames and mirror are then the
+    programs the ``db`` fixture compiled (100 frames compiled them again: ~1.2 s)."""
     from benchmarks import REGISTRY, BenchConfig
     from benchmarks.matching import MatchingSizes, run_matching
 
     assert REGISTRY["matching"].load() is run_matching
     config = BenchConfig.make_quick(dtypes=("float64",), verbose=False)
-    (search,) = run_matching(config, MatchingSizes(speeds=(1.0,), frames_per_speed=100, batches=(4,), crowd=0))
+    (search,) = run_matching(config, MatchingSizes(speeds=(1.0,), frames_per_speed=120, batches=(4,), crowd=0))
     rows = {r.implementation: r for r in search.rows}
     assert {"numpy brute force (BLAS)", "jaxanim matching.search (vmap)"} <= set(rows)
     for name in ("numpy brute force (BLAS)", "jaxanim matching.search (vmap)"):

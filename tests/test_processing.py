@@ -2,14 +2,17 @@
 
 References are written here independently, with numpy and ``scipy.spatial.transform.Rotation``
 (scipy stores quaternions xyzw; jaxanim wxyz: :func:`_R` and :func:`_wxyz` convert explicitly).
-Compiled shapes are few: the shipped walk (120 x 21), its first 97 frames (the loop tests) and one
-batch of 8 root poses; the CLI test blends at the same frames as the library test, so its
-transition comes from the same jit cache.
+Compiled shapes are few: the shipped walk (120 x 21), its first 97 frames (the loop tests and the
+vmap test's clips) and one batch of 8 root poses; the CLI test blends at the same frames as the
+library test, so its transition comes from the same jit cache. The references slice the clips on
+the host (:func:`_host`): eager slicing of a jax array compiles a program per shape (~20-100 ms each,
+about 40 of them in this file).
 """
 
 from __future__ import annotations
 
 import re
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +22,6 @@ from scipy.spatial.transform import Rotation
 
 from jaxanim import JaxanimError
 from jaxanim.app import _cli
-from jaxanim.kinematics import forward_kinematics
 from jaxanim.skeleton._clips import resample
 from jaxanim.skeleton import (
     Motion,
@@ -39,7 +41,7 @@ from jaxanim.skeleton import (
     write_bvh,
 )
 
-from .helpers import assert_close
+from .helpers import assert_close, batched_fk
 
 _ATOL = 1e-10  # float64 processing vs the numpy / scipy references
 _ATOL_BVH = 2e-6  # through a BVH file: 6 decimals (degrees and file units)
@@ -51,6 +53,12 @@ _FA, _FB, _W = 60, 30, 10  # the transition the library and CLI tests share
 # ------------------------------------------------------------------------------------------------
 # Independent references (scipy, xyzw)
 # ------------------------------------------------------------------------------------------------
+
+
+def _host(m: Motion) -> SimpleNamespace:
+    """A clip's arrays as NumPy (for slicing and indexing without compiling eager programs); idempotent."""
+    return SimpleNamespace(rotations=np.asarray(m.rotations), translations=np.asarray(m.translations),
+                           num_frames=m.num_frames, frame_time=np.asarray(m.frame_time))
 
 
 def _R(q_wxyz) -> Rotation:
@@ -77,6 +85,7 @@ def _ref_facing(q_wxyz, p, up=_Y):
 
 def _ref_align(b: Motion, fb: int, a: Motion, fa: int):
     """Eq. 5.5 on B's root: ``(root quaternions wxyz [F, 4], root positions [F, 3])``."""
+    a, b = _host(a), _host(b)
     R_A, t_A = _ref_facing(a.rotations[fa, 0], a.translations[fa, 0])
     R_B, t_B = _ref_facing(b.rotations[fb, 0], b.translations[fb, 0])
     D = R_A * R_B.inv()
@@ -147,8 +156,9 @@ def poses():
 @pytest.mark.parametrize("up", [(0.0, 1.0, 0.0), (0.0, 0.0, 2.0)])
 def test_facing_frame_matches_scipy(poses, up):
     q, p = poses
-    facing, origin = facing_frame(q, p, up=up)
+    facing, origin = (np.asarray(x) for x in facing_frame(q, p, up=up))
     u = np.asarray(up) / np.linalg.norm(up)
+    q, p = np.asarray(q), np.asarray(p)
     for i in range(q.shape[0]):
         R_y, o = _ref_facing(q[i], p[i], up)
         _same_rotation(f"facing[{i}]", facing[i], _wxyz(R_y), _ATOL)
@@ -161,9 +171,10 @@ def test_facing_frame_matches_scipy(poses, up):
 
 def test_facing_frame_vmap_equals_loop(poses):
     q, p = poses
-    batched = jax.jit(jax.vmap(lambda q, p: facing_frame(q, p)))(q, p)
+    batched = [np.asarray(x) for x in jax.jit(jax.vmap(lambda q, p: facing_frame(q, p)))(q, p)]
+    q, p = np.asarray(q), np.asarray(p)
     for i in range(q.shape[0]):
-        one = facing_frame(q[i], p[i])
+        one = facing_frame(jnp.asarray(q[i]), jnp.asarray(p[i]))
         assert_close(f"facing[{i}]", batched[0][i], one[0], atol=1e-14)
         assert_close(f"origin[{i}]", batched[1][i], one[1], atol=1e-14)
 
@@ -171,8 +182,9 @@ def test_facing_frame_vmap_equals_loop(poses):
 def test_align_matches_eq_5_5(walk, mirrored):
     _, a = walk
     b = _turn(mirrored, 2.0, [3.0, 0.0, -1.0])
-    out = align(b, 17, a, 50)
+    out = _host(align(b, 17, a, 50))
     q_ref, p_ref = _ref_align(b, 17, a, 50)
+    a, b = _host(a), _host(b)
     _same_rotation("root rotations", out.rotations[:, 0], q_ref, _ATOL)
     assert_close("root positions", out.translations[:, 0], p_ref, atol=_ATOL)
     assert_close("root height is B's own", out.translations[:, 0, 1], b.translations[:, 0, 1], atol=_ATOL)
@@ -183,7 +195,8 @@ def test_align_matches_eq_5_5(walk, mirrored):
 def test_turned_clip_aligns_back(walk):
     _, m = walk
     turned = _turn(m, -2.5, [4.0, 0.0, 7.0])
-    back = align(turned, 40, m, 40)
+    back = _host(align(turned, 40, m, 40))
+    m = _host(m)
     _same_rotation("root rotations", back.rotations[:, 0], m.rotations[:, 0], _ATOL)
     assert_close("root positions", back.translations, m.translations, atol=_ATOL)
 
@@ -191,11 +204,11 @@ def test_turned_clip_aligns_back(walk):
 def test_align_vmap_equals_loop(walk):
     _, m = walk
     clips = [_turn(m, y, [y, 0.0, -y]) for y in (0.3, -1.0, 2.5)]
-    stacked = jax.tree.map(lambda *x: jnp.stack(x), *clips)
-    frames = jnp.asarray([0, 33, 119])
-    batched = jax.jit(jax.vmap(lambda b, f: align(b, f, m, 7)))(stacked, frames)
+    stacked = jax.tree.map(lambda *x: jnp.asarray(np.stack([np.asarray(a) for a in x])), *clips)
+    frames = [0, 33, 119]
+    batched = _host(jax.jit(jax.vmap(lambda b, f: align(b, f, m, 7)))(stacked, jnp.asarray(frames)))
     for i, c in enumerate(clips):
-        one = align(c, int(frames[i]), m, 7)
+        one = align(c, frames[i], m, 7)
         assert_close(f"rotations[{i}]", batched.rotations[i], one.rotations, atol=1e-13)
         assert_close(f"translations[{i}]", batched.translations[i], one.translations, atol=1e-13)
 
@@ -206,6 +219,7 @@ def test_align_vmap_equals_loop(walk):
 
 
 def _check_transition(out: Motion, a: Motion, b: Motion, fa: int, fb: int, w: int):
+    out, a, b = _host(out), _host(a), _host(b)
     assert out.num_frames == fa + b.num_frames - fb
     assert_close("frames before the switch are A's", out.rotations[:fa], a.rotations[:fa])
     assert_close("frames before the switch are A's (translations)", out.translations[:fa], a.translations[:fa])
@@ -228,6 +242,7 @@ def test_transition(walk, mirrored):
     b = _turn(mirrored, 1.2, [2.0, 0.0, 5.0])
     out = transition(a, b, _FA, _FB, _W)
     _check_transition(out, a, b, _FA, _FB, _W)
+    out, a, b = _host(out), _host(a), _host(b)
     # the blend: A's continuation at the switch, weights strictly between
     _same_rotation("switch frame is A's", out.rotations[_FA], a.rotations[_FA], _ATOL)
     assert_close("switch frame is A's (root)", out.translations[_FA], a.translations[_FA], atol=_ATOL)
@@ -237,7 +252,8 @@ def test_transition(walk, mirrored):
 def test_concatenate_blends_past_the_end(walk, mirrored):
     _, a = walk
     b = _turn(mirrored, -0.7, [1.0, 0.0, 1.0])
-    out = concatenate(a, b, window=8)
+    out = _host(concatenate(a, b, window=8))
+    a, b = _host(a), _host(b)
     F = a.num_frames
     assert out.num_frames == F + b.num_frames
     assert_close("A's frames", out.translations[:F], a.translations)
@@ -257,11 +273,17 @@ def test_concatenate_blends_past_the_end(walk, mirrored):
 # ------------------------------------------------------------------------------------------------
 
 
+def _clip97(m: Motion) -> Motion:
+    """The walk's first 97 frames (cut on the host)."""
+    return Motion(jnp.asarray(np.asarray(m.rotations)[:97]), jnp.asarray(np.asarray(m.translations)[:97]), m.frame_time)
+
+
 def test_make_loop_wraps_smoothly(walk):
     _, m = walk
-    clip = Motion(m.rotations[:97], m.translations[:97], m.frame_time)  # stops mid-stride: a bad loop
+    clip = _clip97(m)  # stops mid-stride: a bad loop
     loop = make_loop(clip)
-    twice = concatenate(loop, loop)
+    twice = _host(concatenate(loop, loop))
+    loop, clip = _host(loop), _host(clip)
     F = clip.num_frames
     assert twice.num_frames == 2 * F
     assert_close("first half is the loop", twice.rotations[:F], loop.rotations)
@@ -277,7 +299,7 @@ def test_make_loop_wraps_smoothly(walk):
     assert _steps(p[F - 2:F + 2]).max() <= _CONT * _steps(p[:F]).max()
     assert _accels(p[F - 3:F + 2]).max() <= _CONT * _accels(p[:F]).max()
     # without make_loop the same wrap jumps (the test means something)
-    q0 = np.asarray(concatenate(clip, clip).rotations)
+    q0 = np.asarray(concatenate(_clip97(m), _clip97(m)).rotations)
     own0 = _angles(q0[1:F], q0[:F - 1])
     assert (_angles(q0[F], q0[F - 1]) > _CONT * own0.max(axis=0)).any()
 
@@ -291,7 +313,8 @@ def test_decay_spring_solves_the_critical_spring():
     x0, v0, hl = np.array([0.3, -1.0, 2.0]), np.array([4.0, 0.5, -3.0]), 0.2
     y = 2 * np.log(2) / hl  # Holden: damping 4 ln2 / halflife, y = damping / 2
     t = np.linspace(0.0, 1.0, 2001)
-    x, v = decay_spring(x0[None], v0[None], hl, t[:, None])
+    spring = jax.jit(decay_spring)  # two programs (two shapes) instead of ~16 eager ones
+    x, v = spring(x0[None], v0[None], hl, t[:, None])
     x, v = np.asarray(x), np.asarray(v)
     h = t[1] - t[0]
     assert_close("x(0)", x[0], x0, atol=1e-15)
@@ -302,7 +325,7 @@ def test_decay_spring_solves_the_critical_spring():
     # stepping (Holden's per-frame use) equals one long step, and it decays
     xs, vs = x0, v0
     for _ in range(10):
-        xs, vs = decay_spring(xs, vs, hl, 0.1)
+        xs, vs = spring(xs, vs, hl, 0.1)
     assert_close("10 steps of 0.1 s", xs, x[-1], atol=1e-12)
     assert np.abs(x[-1]).max() < 0.05 * np.abs(x0).max()
 
@@ -311,7 +334,8 @@ def test_inertialize_is_c1(walk, mirrored):
     _, src = walk
     tgt = align(mirrored, 40, src, 40)
     s, hl = 40, 0.1
-    out = inertialize(src, tgt, s, hl)
+    out = _host(inertialize(src, tgt, s, hl))
+    src, tgt = _host(src), _host(tgt)
     assert out.num_frames == tgt.num_frames
     assert_close("before the switch: source", out.rotations[:s], src.rotations[:s])
     p, ps = np.asarray(out.translations[:, 0]), np.asarray(src.translations[:, 0])
@@ -338,7 +362,7 @@ def test_inertialize_vmap_over_halflife_equals_loop(walk, mirrored):
     _, src = walk
     tgt = align(mirrored, 40, src, 40)
     halflives = jnp.asarray([0.05, 0.1, 0.3])
-    batched = jax.jit(jax.vmap(lambda h: inertialize(src, tgt, 40, h)))(halflives)
+    batched = _host(jax.jit(jax.vmap(lambda h: inertialize(src, tgt, 40, h)))(halflives))
     for i, h in enumerate(halflives.tolist()):
         one = inertialize(src, tgt, 40, h)  # the halflife is traced: the same program as in the C1 test
         assert_close(f"rotations[{i}]", batched.rotations[i], one.rotations, atol=1e-13)
@@ -378,35 +402,38 @@ def test_mirror_reflects_fk(walk, mirrored):
     twice = mirror(mirrored, skel)
     assert_close("mirror twice: rotations", twice.rotations, m.rotations)
     assert_close("mirror twice: translations", twice.translations, m.translations)
-    fk = jax.jit(jax.vmap(forward_kinematics, in_axes=(None, 0, 0)))
+    fk = batched_fk()  # the tests' shared jit(vmap(forward_kinematics)): other files may have compiled it
     a, b = fk(skel, m.rotations, m.translations), fk(skel, mirrored.rotations, mirrored.translations)
     M = np.diag([-1.0, 1.0, 1.0])
     perm = np.asarray(pairs)
     assert_close("mirrored positions", b.positions, np.asarray(a.positions)[:, perm] @ M, atol=_ATOL)
     assert_close("mirrored rotations", b.rotations, M @ np.asarray(a.rotations)[:, perm] @ M, atol=_ATOL)
     # the quaternion rule against the matrix one, any rotation, any axis
-    q = np.asarray(m.rotations[5])
+    q = np.asarray(m.rotations)[5]
+    t5 = jnp.asarray(np.asarray(m.translations)[5:6])
     for ax in range(3):
         Mx = np.eye(3)
         Mx[ax, ax] = -1.0
-        rule = mirror(Motion(q[None], m.translations[5:6], m.frame_time), skel, axis="xyz"[ax], pairs=tuple(range(21)),
-                      check=False).rotations[0]
+        rule = np.asarray(mirror(Motion(jnp.asarray(q[None]), t5, m.frame_time), skel, axis="xyz"[ax],
+                                 pairs=tuple(range(21)), check=False).rotations)[0]
         assert_close(f"M R M, axis {ax}", _R(rule).as_matrix(), Mx @ _R(q).as_matrix() @ Mx, atol=_ATOL)
 
 
 def test_transition_loop_and_mirror_vmap_equal_loops(walk, mirrored):
     """The processing functions under ``jax.vmap`` over a batch of clips (frames and windows stay
-    static Python ints): the same as one call per clip. One jitted program for all three."""
+    static Python ints): the same as one call per clip. One jitted program for all three. The clips
+    are the loop test's 97 frames: its compiled make_loop serves the single calls (a make_loop of 120
+    frames compiled for ~1 s, a transition and a mirror of 97-frame clips take ~0.6 s)."""
     skel, m = walk
-    clips = [_turn(m, y, [y, 0.0, 2.0 * y]) for y in (0.4, -1.3)]
-    stacked = jax.tree.map(lambda *x: jnp.stack(x), *clips)
+    clips = [_turn(_clip97(m), y, [y, 0.0, 2.0 * y]) for y in (0.4, -1.3)]
+    stacked = jax.tree.map(lambda *x: jnp.asarray(np.stack([np.asarray(a) for a in x])), *clips)
 
     @jax.jit
     @jax.vmap
     def batched(b):
         return transition(mirrored, b, _FA, _FB, _W), make_loop(b), mirror(b, skel)
 
-    out = batched(stacked)
+    out = [_host(o) for o in batched(stacked)]
     for i, c in enumerate(clips):
         for name, got, one in zip(("transition", "make_loop", "mirror"), out,
                                   (transition(mirrored, c, _FA, _FB, _W), make_loop(c), mirror(c, skel))):
@@ -431,8 +458,9 @@ def test_bad_input(walk):
     skel, m = walk
     with pytest.raises(JaxanimError, match=r"fps: expected a positive finite number of frames per second, got 0"):
         resample(m, fps=0)
-    short = Motion(m.rotations[:10, :5], m.translations[:10, :5], m.frame_time)
-    slow = Motion(m.rotations, m.translations, 2 * m.frame_time)
+    h = _host(m)  # the bad inputs cut on the host (eager slicing compiles a program per shape)
+    short = Motion(jnp.asarray(h.rotations[:10, :5]), jnp.asarray(h.translations[:10, :5]), m.frame_time)
+    slow = Motion(m.rotations, m.translations, 2 * h.frame_time)
     cases = [
         (lambda: transition(m, m, 121, 0, 0), r"frame_a: frame 121 is out of range"),
         (lambda: transition(m, m, 10, 120, 0), r"frame_b: frame 120 is out of range: b has 120 frames"),
@@ -447,10 +475,11 @@ def test_bad_input(walk):
         (lambda: align(m, 120, m, 0), r"frame_b: frame 120 is out of range: motion_b has 120 frames"),
         (lambda: align(m, 0, m, -1), r"frame_a: frame -1 is out of range"),
         (lambda: align(m, 0, m.rotations, 0), r"motion_a: expected a jaxanim Motion"),
-        (lambda: facing_frame(m.rotations[0, 0], m.translations[0, 0], up=(0, 0, 0)), r"up: expected a nonzero"),
-        (lambda: facing_frame(m.rotations[0, :2], m.translations[0, :3]), r"position: expected batch shape \(2,\)"),
-        (lambda: facing_frame(m.rotations[0, 0, :3], m.translations[0, 0]), r"rotation: expected shape \(\.\.\., 4\)"),
-        (lambda: make_loop(Motion(m.rotations[:1], m.translations[:1], m.frame_time)), r"motion: expected at least 2"),
+        (lambda: facing_frame(h.rotations[0, 0], h.translations[0, 0], up=(0, 0, 0)), r"up: expected a nonzero"),
+        (lambda: facing_frame(h.rotations[0, :2], h.translations[0, :3]), r"position: expected batch shape \(2,\)"),
+        (lambda: facing_frame(h.rotations[0, 0, :3], h.translations[0, 0]), r"rotation: expected shape \(\.\.\., 4\)"),
+        (lambda: make_loop(Motion(jnp.asarray(h.rotations[:1]), jnp.asarray(h.translations[:1]), m.frame_time)),
+         r"motion: expected at least 2"),
         (lambda: inertialize(m, m, 0, 0.1), r"switch: frame 0 is out of range"),
         (lambda: inertialize(m, m, 120, 0.1), r"switch: frame 120 is out of range"),
         (lambda: inertialize(m, m, 10, -0.1), r"halflife: expected a positive number"),
@@ -484,9 +513,7 @@ def test_cli_blend_and_loop(tmp_path, capsys, walk, mirrored, shared_data):
     code, stdout, err = _run(capsys, "blend", a_path, b_path, "--at", _FA, _FB, "--window", _W, "--out", out)
     assert code == 0, err
     assert "150 frames" in stdout and "blending" in err
-    _, a = read_bvh(a_path)
-    _, b = read_bvh(b_path)
-    _, o = read_bvh(out)
+    a, b, o = (_host(read_bvh(p)[1]) for p in (a_path, b_path, out))
     assert o.num_frames == _FA + b.num_frames - _FB
     _same_rotation("OUT before the switch: A's", o.rotations[:_FA], a.rotations[:_FA], 1e-10)
     assert_close("OUT before the switch: A's root", o.translations[:_FA], a.translations[:_FA], atol=_ATOL_BVH)
@@ -499,20 +526,21 @@ def test_cli_blend_and_loop(tmp_path, capsys, walk, mirrored, shared_data):
     assert _steps(o.translations[:, 0]).max() <= _CONT * own, "the root jumps"
 
     part = tmp_path / "part.bvh"  # the loop test's 97 frames: its compiled make_loop serves
-    write_bvh(part, skel, Motion(a.rotations[:97], a.translations[:97], a.frame_time))
+    write_bvh(part, skel, Motion(jnp.asarray(a.rotations[:97]), jnp.asarray(a.translations[:97]), a.frame_time))
     _, part_clip = read_bvh(part)
     loop_out = tmp_path / "part.loop.bvh"
     code, stdout, err = _run(capsys, "loop", part, "--out", loop_out)
     assert code == 0, err
     assert "97 frames" in stdout
     _, lo = read_bvh(loop_out)
-    _same_rotation("loop OUT", lo.rotations, make_loop(part_clip).rotations, 1e-10)
-    assert_close("loop OUT root", lo.translations, make_loop(part_clip).translations, atol=_ATOL_BVH)
+    want = make_loop(part_clip)
+    _same_rotation("loop OUT", lo.rotations, want.rotations, 1e-10)
+    assert_close("loop OUT root", lo.translations, want.translations, atol=_ATOL_BVH)
 
     # bad input: exit 2 and a message naming the file / frame
     cmu = shared_data / "bvh" / "cmu_01_01_trim300.bvh"
     slow = tmp_path / "slow.bvh"
-    write_bvh(slow, skel, Motion(a.rotations, a.translations, 2 * a.frame_time))
+    write_bvh(slow, skel, Motion(jnp.asarray(a.rotations), jnp.asarray(a.translations), 2 * a.frame_time))
     bad = [
         (("blend", a_path, cmu, "--at", 10, 0), rf"{a_path} and {cmu} have different skeletons"),
         (("blend", a_path, slow, "--at", 10, 0), rf"{a_path} and {slow} have different frame times"),

@@ -21,13 +21,17 @@ import jaxanim
 from jaxanim import skinning
 from jaxanim.skinning import Mesh, SkinWeights
 
-from .helpers import assert_close, random_pose, small_skeleton
+from .helpers import assert_close, jitted_fk, random_pose, small_skeleton
 
 _ATOL_SKIN = 1e-12  # float64 skinning vs the NumPy loops (file units, |v| <= ~3)
 _ATOL_RIGID = 1e-12
 _RTOL_ANALYTIC = 1e-12
 _RTOL_FD = 1e-6  # directional derivatives vs central differences (h = 1e-6)
 METHODS = ("lbs", "dqs")
+#: ``bind_transforms`` of a posed bind as one program (eager, its FK compiles ~40 primitives one by one: ~1 s)
+_bind_transforms = jax.jit(skinning.bind_transforms)
+#: jaxanim's matrix -> quaternion (the signs its DQS blends with), one program instead of ~15 eager ones
+_matrix_to_quat = jax.jit(jaxanim.rotations.matrix_to_quat)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -162,13 +166,13 @@ def _ring_area(points: np.ndarray) -> float:
 @pytest.mark.parametrize("posed_bind", [False, True], ids=["rest bind", "given bind"])
 def test_skin_matches_numpy_loop(small, method, posed_bind):
     skel, verts, w, q, t, (bq, bt) = small
-    bind = skinning.bind_transforms(skel, bq, bt) if posed_bind else None
+    bind = _bind_transforms(skel, bq, bt) if posed_bind else None
     bind_G = _np_fk(skel, bq, bt) if posed_bind else _np_fk(skel, skel.rest_rotations(), skel.offsets)
     got = skinning.skin(skel, q, t, verts, w, method, bind)
     M = _np_skinning_matrices(skel, q, t, bind_G)
     ref = (_np_lbs if method == "lbs" else _np_dqs)(M, np.asarray(verts), np.asarray(w.joints), np.asarray(w.weights))
     assert_close(f"{method} vertices", got, ref, atol=_ATOL_SKIN)
-    r = np.asarray(jaxanim.rotations.matrix_to_quat(M[:, :3, :3]))  # the signs jaxanim blends with
+    r = np.asarray(_matrix_to_quat(M[:, :3, :3]))  # the signs jaxanim blends with
     j = np.asarray(w.joints)
     pivot = j[np.arange(len(j)), np.argmax(np.asarray(w.weights), axis=1)]
     assert (np.einsum("vkq,vq->vk", r[j], r[pivot]) < 0).any(), "the pose should exercise DQS's hemisphere flip"
@@ -180,7 +184,9 @@ def test_one_product_forms_match_the_gathers(small, monkeypatch):
     from jaxanim.skinning import _skin
 
     skel, verts, w, q, t, _ = small
-    R, tr = jax.jit(_skin._skinning_transforms)(skel, q, t, *_skin._rest_fk(skel))
+    # the skinning transforms by the NumPy reference (jitting jaxanim's compiled two programs, ~0.4 s)
+    M = _np_skinning_matrices(skel, q, t, _np_fk(skel, skel.rest_rotations(), skel.offsets))
+    R, tr = jnp.asarray(M[:, :3, :3]), jnp.asarray(M[:, :3, 3])
     pairs = _skin._dqs_pairs(np.asarray(w.joints), np.asarray(w.weights), skel.num_joints)
     assert pairs is not None and pairs.index.shape == w.joints.shape
 
@@ -201,8 +207,8 @@ def test_one_product_forms_match_the_gathers(small, monkeypatch):
 def test_single_weight_vertex_moves_rigidly_with_its_joint(small, method):
     skel, verts, w, q, t, _ = small
     got = np.asarray(skinning.skin(skel, q, t, verts, w, method))[:6]
-    fk = jaxanim.forward_kinematics(skel, q, t)
-    rest = jaxanim.forward_kinematics(skel, skel.rest_rotations(), skel.offsets)
+    fk = jitted_fk(skel, q, t)  # one program for both poses (eager FK compiles ~40 primitives one by one)
+    rest = jitted_fk(skel, skel.rest_rotations(), skel.offsets)
     for v in range(6):
         j = int(w.joints[v, 0])
         local = np.asarray(rest.rotations[j]).T @ (np.asarray(verts[v]) - np.asarray(rest.positions[j]))
@@ -215,7 +221,7 @@ def test_bind_pose_leaves_the_mesh_in_place(small, method):
     skel, verts, w, _, _, (bq, bt) = small
     at_rest = skinning.skin(skel, skel.rest_rotations(), skel.offsets, verts, w, method)
     assert_close("rest pose, rest bind", at_rest, verts, atol=_ATOL_RIGID)
-    bind = skinning.bind_transforms(skel, bq, bt)
+    bind = _bind_transforms(skel, bq, bt)
     at_bind = skinning.skin(skel, bq, bt, verts, w, method, bind)
     assert_close("bind pose, given bind", at_bind, verts, atol=_ATOL_RIGID)
 
@@ -223,12 +229,12 @@ def test_bind_pose_leaves_the_mesh_in_place(small, method):
 def test_bind_transforms_default_is_the_rest_pose(small):
     skel = small[0]
     T = np.asarray(skinning.bind_transforms(skel))
-    fk = jaxanim.forward_kinematics(skel, skel.rest_rotations(), skel.offsets)
+    fk = jitted_fk(skel, skel.rest_rotations(), skel.offsets)
     assert T.shape == (skel.num_joints, 4, 4)
     assert_close("R", T[:, :3, :3], fk.rotations, atol=0)
     assert_close("p", T[:, :3, 3], fk.positions, atol=0)
     assert_close("last row", T[:, 3], np.tile([0.0, 0, 0, 1], (skel.num_joints, 1)), atol=0)
-    assert_close("as (R, p)", skinning.bind_transforms(skel, skel.rest_rotations(), None), T, atol=1e-15)
+    assert_close("as (R, p)", _bind_transforms(skel, skel.rest_rotations(), None), T, atol=1e-15)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -287,21 +293,28 @@ def test_candy_wrapper_lbs_collapses_dqs_keeps_the_cross_section(tube):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_vmap_over_frames_and_characters_equals_a_loop(small, method):
+    """``skin_motion`` (``jax.vmap`` of the skinning kernel over frames, one mesh: the pose-only batch) and
+    ``jax.vmap(skin)`` over poses and characters together (each frame its own vertices and weights) against
+    single calls. One ``vmap(skin)`` batches the pose and the mesh at once: a ``vmap(skin)`` over the poses
+    alone (what ``skin_motion`` compiles) and one over the meshes alone compiled a program each (~0.8 s per
+    method). Inputs are stacked and sliced on the host (eager stacking and indexing compile a program each)."""
     skel, verts, w, _, _, _ = small
-    qs, ts = random_pose(skel, seed=11, n=3, scale=1.0)
-    batched = jax.vmap(lambda q, t: skinning.skin(skel, q, t, verts, w, method))(qs, ts)
-    loop = np.stack([np.asarray(skinning.skin(skel, qs[i], ts[i], verts, w, method)) for i in range(3)])
-    assert_close("vmap over frames", batched, loop, atol=1e-13)
-    motion = jaxanim.Motion(qs, ts, 1 / 30)
+    qs, ts = (np.asarray(x) for x in random_pose(skel, seed=11, n=3, scale=1.0))
+    loop = np.stack([np.asarray(skinning.skin(skel, jnp.asarray(qs[i]), jnp.asarray(ts[i]), verts, w, method))
+                     for i in range(3)])
+    motion = jaxanim.Motion(jnp.asarray(qs), jnp.asarray(ts), 1 / 30)
     assert_close("skin_motion", skinning.skin_motion(skel, motion, verts, w, method), loop, atol=1e-13)
-    # characters: each its own vertices and weights
-    vs = jnp.stack([verts, verts * 1.1, verts[::-1]])
-    ws = jnp.stack([w.weights, w.weights[::-1], w.weights])
-    js = jnp.stack([w.joints, w.joints[::-1], w.joints])
-    chars = jax.vmap(lambda v, j, ww: skinning.skin(skel, qs[0], ts[0], v, SkinWeights(j, ww), method))(vs, js, ws)
+    # frames and characters: each frame its own pose, vertices and weights
+    v0, j0, w0 = np.asarray(verts), np.asarray(w.joints), np.asarray(w.weights)
+    vs = jnp.asarray(np.stack([v0, v0 * 1.1, v0[::-1]]))
+    ws = jnp.asarray(np.stack([w0, w0[::-1], w0]))
+    js = jnp.asarray(np.stack([j0, j0[::-1], j0]))
+    batched = np.asarray(jax.vmap(lambda q, t, v, j, ww: skinning.skin(skel, q, t, v, SkinWeights(j, ww), method))(
+        jnp.asarray(qs), jnp.asarray(ts), vs, js, ws))
+    assert_close("vmap over frames, character 0 (skin's own mesh)", batched[0], loop[0], atol=1e-13)
     for i in range(3):
-        one = skinning.skin(skel, qs[0], ts[0], vs[i], SkinWeights(js[i], ws[i]), method)
-        assert_close(f"character {i}", chars[i], one, atol=1e-13)
+        one = skinning.skin(skel, jnp.asarray(qs[i]), jnp.asarray(ts[i]), vs[i], SkinWeights(js[i], ws[i]), method)
+        assert_close(f"frame and character {i}", batched[i], one, atol=1e-13)
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -311,21 +324,24 @@ def test_gradients_match_central_differences(small, method):
     skel, verts, w, q, t, _ = small
     c = jnp.asarray(np.random.default_rng(0).normal(size=verts.shape))
 
-    @jax.jit
     def loss(weights, q, t):
         return jnp.sum(c * skinning.skin(skel, q, t, verts, SkinWeights(w.joints, weights), method))
 
-    grads = jax.jit(jax.grad(loss, argnums=(0, 1, 2)))(w.weights, q, t)
+    # one program for the gradient and the loss values of the differences (a jitted loss apart compiled a
+    # second one: ~0.7 s per method)
+    value_and_grad = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2)))
+    grads = value_and_grad(w.weights, q, t)[1]
     rng = np.random.default_rng(1)
     h = 1e-6
-    for i, (name, x) in enumerate((("weights", w.weights), ("rotations", q), ("translations", t))):
-        assert np.isfinite(np.asarray(grads[i])).all(), name
-        d = jnp.asarray(rng.normal(size=x.shape))
-        args_p = [w.weights, q, t]
-        args_m = [w.weights, q, t]
-        args_p[i], args_m[i] = x + h * d, x - h * d
-        fd = (loss(*args_p) - loss(*args_m)) / (2 * h)
-        assert_close(f"d/d{name}", jnp.sum(grads[i] * d), fd, rtol=_RTOL_FD)
+    args = [np.asarray(x) for x in (w.weights, q, t)]  # the steps on the host: eager jnp compiles each op
+    for i, name in enumerate(("weights", "rotations", "translations")):
+        g = np.asarray(grads[i])
+        assert np.isfinite(g).all(), name
+        d = rng.normal(size=g.shape)
+        args_p, args_m = list(args), list(args)
+        args_p[i], args_m[i] = args[i] + h * d, args[i] - h * d
+        fd = (float(value_and_grad(*args_p)[0]) - float(value_and_grad(*args_m)[0])) / (2 * h)
+        assert_close(f"d/d{name}", np.sum(g * d), fd, rtol=_RTOL_FD)
 
 
 # ------------------------------------------------------------------------------------------------
