@@ -45,12 +45,17 @@ def small_skeleton(dtype=jnp.float64) -> jaxanim.Skeleton:
     )
 
 
+#: ``rotvec_to_quat`` as one program per shape (eager, it compiled 10-15 primitives one by one for every new
+#: shape of ``random_pose``, which 45 call sites draw)
+_rotvec_to_quat = jax.jit(rot.rotvec_to_quat)
+
+
 def random_pose(skeleton: jaxanim.Skeleton, seed: int, n: int | None = None, scale: float = 0.8):
     """Random unit quaternions and translations (offsets plus noise), optionally batched by ``n``."""
     rng = np.random.default_rng(seed)
     shape = (skeleton.num_joints,) if n is None else (n, skeleton.num_joints)
     dtype = skeleton.offsets.dtype
-    q = rot.rotvec_to_quat(jnp.asarray(rng.normal(size=shape + (3,)) * scale, dtype))
+    q = _rotvec_to_quat(jnp.asarray(rng.normal(size=shape + (3,)) * scale, dtype))
     t = jnp.asarray(np.asarray(skeleton.offsets) + 0.1 * rng.normal(size=shape + (3,)), dtype)
     return q, t
 
