@@ -10,8 +10,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 import jaxanim
+from benchmarks.peers import numpy_fk as _numpy_fk
 from jaxanim import ik
 from jaxanim import rotations as rot
 from jaxanim.bvh import read_bvh
@@ -58,6 +60,51 @@ def random_pose(skeleton: jaxanim.Skeleton, seed: int, n: int | None = None, sca
     q = _rotvec_to_quat(jnp.asarray(rng.normal(size=shape + (3,)) * scale, dtype))
     t = jnp.asarray(np.asarray(skeleton.offsets) + 0.1 * rng.normal(size=shape + (3,)), dtype)
     return q, t
+
+
+def scipy_rotation(q) -> Rotation:
+    """numpy/scipy: the ``Rotation`` of wxyz quaternions ``[..., 4]`` (scipy stores xyzw)."""
+    return Rotation.from_quat(np.asarray(q)[..., [1, 2, 3, 0]])
+
+
+def wxyz(R) -> np.ndarray:
+    """numpy/scipy: wxyz quaternions of rotation matrices ``[..., 3, 3]`` (scipy's sign)."""
+    xyzw = Rotation.from_matrix(np.asarray(R)).as_quat()
+    return np.concatenate([xyzw[..., 3:], xyzw[..., :3]], axis=-1)
+
+
+def numpy_fk(skel: jaxanim.Skeleton, q, t) -> _numpy_fk.FKArrays:
+    """numpy forward kinematics (the benchmarks' float64 reference, ``benchmarks.peers.numpy_fk``) of wxyz
+    ``q [..., joints, 4]`` and ``t [..., joints, 3]``: world ``rotations``, ``positions`` and ``end_site_positions``
+    with ``q``'s leading dimensions. An FK independent of the library's that compiles nothing (a jitted FK
+    compiles ~1 s per skeleton and shape)."""
+    q, t = np.asarray(q, np.float64), np.asarray(t, np.float64)
+    lead, J = q.shape[:-2], skel.num_joints
+    out = _numpy_fk.forward_kinematics(skel.parents, skel.end_site_parents, np.asarray(skel.end_site_offsets),
+                                       scipy_rotation(q.reshape(-1, 4)).as_matrix().reshape(-1, J, 3, 3),
+                                       t.reshape(-1, J, 3))
+    return _numpy_fk.FKArrays(*(x.reshape(lead + x.shape[1:]) for x in out))
+
+
+def random_site_targets(skel: jaxanim.Skeleton, seed: int, effectors) -> tuple[ik.Target, ...]:
+    """Position and orientation targets for ``effectors`` (joints or End Sites) from FK (:func:`numpy_fk`) of a
+    random pose within +-45 deg of the rest pose (``rot.euler_to_quat(eul, "ZYX")``), root rotated freely and
+    moved: reachable."""
+    rng = np.random.default_rng(seed)
+    eul = rng.uniform(-np.pi / 4, np.pi / 4, size=(skel.num_joints, 3))
+    q = wxyz(Rotation.from_euler("ZYX", eul).as_matrix())
+    q[0] = wxyz(Rotation.from_rotvec(rng.normal(size=3)).as_matrix())
+    t = np.asarray(skel.offsets).copy()
+    t[0] = rng.normal(size=3) * 5
+    out = numpy_fk(skel, q, t)
+    pos = np.concatenate([out.positions, out.end_site_positions])
+    quats = wxyz(out.rotations)
+    tg = []
+    for name in effectors:
+        i = skel.site_index(name)
+        owner = i if i < skel.num_joints else skel.end_site_parents[i - skel.num_joints]
+        tg.append(ik.Target(name, pos[i], quats[owner]))
+    return tuple(tg)
 
 
 @functools.lru_cache(maxsize=None)

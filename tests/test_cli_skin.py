@@ -13,7 +13,6 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 import jaxanim
 from benchmarks.skinning import numpy_dqs, numpy_lbs
@@ -21,7 +20,7 @@ from jaxanim import skinning
 from jaxanim.app import _cli as cli
 from jaxanim.app._common import _as_dtype
 
-from .helpers import assert_close, quick_bench_config
+from .helpers import assert_close, numpy_fk, quick_bench_config
 
 _ATOL_CLI64 = 1e-12  # float64 command output vs the NumPy skinning (m)
 _ATOL_CLI32 = 2e-5  # --float32
@@ -182,12 +181,9 @@ def test_numpy_dqs_is_jaxanims_formulation(walk, small_mesh):
     trans[:, 0] = rng.normal(size=(F, 3))
     motion = jaxanim.Motion(q, trans, 1 / 30)
     # the rest pose's global rotations are the identity, so these are the skinning rotations' quaternions; the
-    # global rotations of frame 0 chained on the host (scipy is xyzw), their quaternions by jaxanim's conversion,
-    # whose signs its DQS blends with (an eager FK of the walk compiled ~20 small programs)
-    local = Rotation.from_quat(q[0][:, [1, 2, 3, 0]]).as_matrix()
-    world = np.zeros_like(local)
-    for j, p in enumerate(skel.parents):
-        world[j] = local[j] if p < 0 else world[p] @ local[j]
+    # global rotations of frame 0 by numpy FK, their quaternions by jaxanim's conversion, whose signs its DQS blends
+    # with (an eager FK of the walk compiled ~20 small programs)
+    world = numpy_fk(skel, q[0], trans[0]).rotations
     r = np.asarray(jax.jit(jaxanim.rotations.matrix_to_quat)(world))
     pivot = joints[np.arange(V), np.argmax(weights, axis=1)]
     assert np.any(np.einsum("vq,vkq->vk", r[pivot], r[joints]) < 0), "no pair needs a flip"

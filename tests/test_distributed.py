@@ -40,7 +40,7 @@ _WORKER = textwrap.dedent(
     from jax.experimental.multihost_utils import process_allgather
     import jaxanim, solvers
     from benchmarks.oc import make_dare_systems
-    from tests.helpers import small_skeleton
+    from tests.helpers import random_pose, small_skeleton
 
     assert jax.process_count() == 2 and jax.local_device_count() == local, (jax.process_count(), jax.devices())
     assert jax.device_count() == 2 * local, jax.devices()
@@ -60,12 +60,7 @@ _WORKER = textwrap.dedent(
     skel = small_skeleton()
     B = 8 * local
     fk = jax.jit(jax.vmap(jaxanim.forward_kinematics, in_axes=(None, 0, 0)))
-    # a random batch of poses, drawn in NumPy (tests.helpers.random_pose dispatches its rotations
-    # op by op: a dozen small programs to compile in each process)
-    rng = np.random.default_rng(0)
-    q = rng.normal(size=(B, skel.num_joints, 4))
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    t = np.asarray(skel.offsets) + 0.1 * rng.normal(size=(B, skel.num_joints, 3))
+    q, t = (np.asarray(x) for x in random_pose(skel, 0, n=B))  # on the host: sliced below without compiling
     check("forward_kinematics", fk, (skel,), (q, t), B)
     dare = jax.jit(jax.vmap(lambda A, B, Q, R: solvers.dare(A, B, Q, R)))
     check("dare", dare, (), make_dare_systems(B, 3, 2), B)

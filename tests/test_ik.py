@@ -14,13 +14,13 @@ from scipy.spatial.transform import Rotation
 
 import jaxanim
 import solvers
-from benchmarks.peers import numpy_fk
 from jaxanim import ik
 from jaxanim.ik import _problem as ik_impl
 from jaxanim import rotations as rot
 
 from .conftest import shared_data_dir
-from .helpers import assert_close, jitted_limit_violation, random_pose, shared_clip, small_skeleton
+from .helpers import (assert_close, jitted_limit_violation, numpy_fk, random_pose, random_site_targets,
+                      scipy_rotation, shared_clip, small_skeleton, wxyz)
 from .helpers import jitted_fk as _fk
 
 _TOL_REACH = 1e-6
@@ -78,51 +78,10 @@ def _cmu():
 EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "Head_End")
 
 
-def _scipy_rotation(q):
-    """numpy/scipy: the ``Rotation`` of wxyz quaternions (scipy stores xyzw)."""
-    return Rotation.from_quat(np.asarray(q)[..., [1, 2, 3, 0]])
-
-
-def _wxyz(R):
-    """numpy/scipy: wxyz quaternions of rotation matrices (any sign: orientation targets are sign-free)."""
-    xyzw = Rotation.from_matrix(np.asarray(R)).as_quat()
-    return np.concatenate([xyzw[..., 3:], xyzw[..., :3]], axis=-1)
-
-
-def _np_fk(skel, q, t):
-    """numpy FK (the benchmarks' float64 reference, ``benchmarks.peers.numpy_fk``) of wxyz ``q [..., joints, 4]``
-    and ``t [..., joints, 3]``: ``(world rotations [..., joints, 3, 3], positions, end site positions)``.
-
-    Used for the CMU and walk skeletons' goals and checks: an independent FK, and no compile (a jitted FK
-    of those skeletons compiles in ~1 s per skeleton and batch shape)."""
-    q, t = np.asarray(q, np.float64), np.asarray(t, np.float64)
-    lead, J = q.shape[:-2], skel.num_joints
-    out = numpy_fk.forward_kinematics(skel.parents, skel.end_site_parents, np.asarray(skel.end_site_offsets),
-                                      _scipy_rotation(q.reshape(-1, 4)).as_matrix().reshape(-1, J, 3, 3),
-                                      t.reshape(-1, J, 3))
-    return tuple(x.reshape(lead + x.shape[1:]) for x in out)
-
-
 def _random_targets(skel, seed):
-    """Targets from FK of a random pose within +-45 deg of the rest pose, root rotated freely.
-
-    In numpy and scipy (the pose's quaternions are those of ``rot.euler_to_quat(eul, "ZYX")``): a
-    jitted pose-and-FK function compiled 1 s, here and in tests/test_ik_limits.py."""
-    rng = np.random.default_rng(seed)
-    eul = rng.uniform(-np.pi / 4, np.pi / 4, size=(skel.num_joints, 3))
-    q = _wxyz(Rotation.from_euler("ZYX", eul).as_matrix())
-    q[0] = _wxyz(Rotation.from_rotvec(rng.normal(size=3)).as_matrix())
-    t = np.asarray(skel.offsets).copy()
-    t[0] = rng.normal(size=3) * 5
-    R, p, ends = _np_fk(skel, q, t)
-    pos = np.concatenate([p, ends])
-    quats = _wxyz(R)
-    tg = []
-    for name in EFFECTORS:
-        i = skel.site_index(name)
-        owner = i if i < skel.num_joints else skel.end_site_parents[i - skel.num_joints]
-        tg.append(ik.Target(name, pos[i], quats[owner]))
-    return tuple(tg)
+    """Targets from FK of a random pose within +-45 deg of the rest pose, root rotated freely (numpy and scipy:
+    a jitted pose-and-FK function compiled 1 s, here and in tests/test_ik_limits.py)."""
+    return random_site_targets(skel, seed, EFFECTORS)
 
 
 def test_reachable_targets_on_cmu_skeleton():
@@ -182,7 +141,7 @@ def test_bad_input():
 
 
 def _height(skel):
-    _, p, ends = _np_fk(skel, skel.rest_rotations(), skel.offsets)
+    _, p, ends = numpy_fk(skel, skel.rest_rotations(), skel.offsets)
     y = np.concatenate([p, ends])[:, 1]
     return float(y.max() - y.min())
 
@@ -198,7 +157,7 @@ def test_games105_single_frame_tasks():
     skel, motion = _cmu()
     h = _height(skel)
     q, t = motion.rotations[100], motion.translations[100]
-    _, p, ends = _np_fk(skel, q, t)
+    _, p, ends = numpy_fk(skel, q, t)
     goal_l = p[skel.index("LeftHand")] + np.array([0.1, 0.05, 0.1]) * h
     goal_r = p[skel.index("RightHand")] + np.array([-0.05, 0.1, 0.05]) * h
     cases = [
@@ -214,7 +173,7 @@ def test_games105_single_frame_tasks():
         # reachable: met within solve_ik's default tolerance (1e-5 x the skeleton's size)
         assert bool(sol.success), (case, solvers.RESULTS[sol.result], sol.position_errors)
         assert float(jnp.max(sol.position_errors)) <= tol, (case, sol.position_errors)
-        _, p_res, ends_res = _np_fk(skel, sol.rotations, sol.translations)
+        _, p_res, ends_res = numpy_fk(skel, sol.rotations, sol.translations)
         if "pin" in case:
             assert_close("pinned toe", ends_res[skel.end_site_names.index("LeftToeBase_End")], toe, atol=1e-9 * h)
         else:
@@ -226,7 +185,7 @@ def test_games105_wrist_holding_over_the_clip():
     shared_data_dir()
     skel, motion = _cmu()
     h = _height(skel)
-    R, p, _ = _np_fk(skel, motion.rotations, motion.translations)
+    R, p, _ = numpy_fk(skel, motion.rotations, motion.translations)
     # the goal in NumPy (eager jnp would compile each op for the clip's shapes)
     root = p[:, 0]
     fwd = R[:, 0, :, 2] * np.array([[1.0, 0.0, 1.0]])  # root z axis on the ground (Y up)
@@ -255,7 +214,7 @@ def test_ik_matches_scipy_least_squares():
     base = _fk(skel, q, t)
     p = np.asarray(base.end_site_positions)
     # a goal frame for forearm_End (its owner's, joint 4) rotated by ~0.06 rad
-    near = _wxyz(Rotation.from_rotvec([0.04, -0.03, 0.03]).as_matrix() @ np.asarray(base.rotations[4]))
+    near = wxyz(Rotation.from_rotvec([0.04, -0.03, 0.03]).as_matrix() @ np.asarray(base.rotations[4]))
     cases = {
         # near the start: both solvers end in the same basin
         "near": (ik.Target("forearm_End", p[1] + 0.05, near), ik.Target("head_End", p[0] - 0.03, weight=0.5)),
@@ -271,7 +230,7 @@ def test_ik_matches_scipy_least_squares():
         # eager jnp compiles op by op)
         y_ours = np.concatenate([
             np.asarray(sol.translations[0]) - np.asarray(t[0]),
-            (_scipy_rotation(sol.rotations) * _scipy_rotation(q).inv()).as_rotvec().reshape(-1),
+            (scipy_rotation(sol.rotations) * scipy_rotation(q).inv()).as_rotvec().reshape(-1),
         ])
         ref = scipy_ls(lambda y: np.asarray(f(jnp.asarray(y))), np.zeros(n), jac=lambda y: np.asarray(jf(jnp.asarray(y))),
                        method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
@@ -332,7 +291,7 @@ def test_cli_ik_writes_edited_bvh(tmp_path, monkeypatch):
     short = jaxanim.Motion(m.rotations[:8], m.translations[:8], m.frame_time)
     src = tmp_path / "walk8.bvh"
     jaxanim.write_bvh(src, skel, short)
-    hand = _np_fk(skel, short.rotations, short.translations)[1][:, skel.index("LeftHand")]
+    hand = numpy_fk(skel, short.rotations, short.translations)[1][:, skel.index("LeftHand")]
     goal = hand + np.array([0.05, 0.1, 0.0])
     spec = {"pin": "LeftToeBase_End", "frozen": ["RightUpLeg"],
             "targets": [{"joint": "LeftHand", "position": goal.tolist(), "weight": 1.0}],
@@ -342,7 +301,7 @@ def test_cli_ik_writes_edited_bvh(tmp_path, monkeypatch):
     assert main(["--quiet", "ik", str(src), "--targets", str(tmp_path / "t.json"), "--out", str(out)]) == 0
     skel2, edited = jaxanim.read_bvh(out)
     assert skel2.names == skel.names and skel2.channels == skel.channels
-    got = _np_fk(skel2, edited.rotations, edited.translations)[1][:, skel.index("LeftHand")]
+    got = numpy_fk(skel2, edited.rotations, edited.translations)[1][:, skel.index("LeftHand")]
     assert float(np.abs(got - goal).max()) < 1e-4  # file precision (6 decimals) bounds it
     limits = ik.targets_from_json(skel, spec, 8)[1]["limits"]
     assert float(jnp.max(jitted_limit_violation(skel, batched=True)(limits, edited.rotations))) < 1e-6

@@ -16,12 +16,12 @@ from scipy.spatial.transform import Rotation
 
 import jaxanim
 import solvers
-from benchmarks.peers import numpy_fk
 from jaxanim import ik
 from jaxanim.ik_ccd import solve_ik_ccd
 
 from .conftest import shared_data_dir
-from .helpers import assert_close, random_pose, shared_clip, small_skeleton
+from .helpers import (assert_close, numpy_fk, random_pose, random_site_targets, scipy_rotation, shared_clip,
+                      small_skeleton, wxyz)
 
 _ATOL_STEP = 1e-7  # the Wahba step against scipy (the step is damped by a relative ~1.5e-8)
 _ATOL_VMAP = 1e-6  # vmap against a loop: same sweeps, rounding amplified over ~100 of them
@@ -36,22 +36,6 @@ def _chain():
     )
 
 
-def _fk(skel, q, t):
-    """numpy FK (the benchmarks' float64 reference, ``benchmarks.peers.numpy_fk``) of one pose: world
-    ``rotations``, ``positions``, ``end_site_positions``. An independent FK for the goals and checks, and
-    no compile (a jitted FK compiled once per skeleton: 0.9 s for the CMU one, 0.3 s for each small one)."""
-    R = _wxyz_to_scipy(np.asarray(q, np.float64)).as_matrix()[None]
-    out = numpy_fk.forward_kinematics(skel.parents, skel.end_site_parents, np.asarray(skel.end_site_offsets),
-                                      R, np.asarray(t, np.float64)[None])
-    return numpy_fk.FKArrays(*(x[0] for x in out))
-
-
-def _world_quats(R):
-    """numpy/scipy: wxyz quaternions of rotation matrices (any sign: the solver uses their matrices)."""
-    xyzw = Rotation.from_matrix(np.asarray(R)).as_quat()
-    return np.concatenate([xyzw[..., 3:], xyzw[..., :3]], axis=-1)
-
-
 def _canonical(q):
     """numpy: the sign of ``q`` with w >= 0 (the test poses never have w == 0)."""
     q = np.asarray(q)
@@ -60,13 +44,7 @@ def _canonical(q):
 
 def _angle(q0, q1):
     """numpy/scipy: the angle between two wxyz rotations."""
-    return float((_wxyz_to_scipy(q0).inv() * _wxyz_to_scipy(q1)).magnitude())
-
-
-def _wxyz_to_scipy(q):
-    """wxyz (jaxanim) -> scipy Rotation (scipy stores xyzw)."""
-    q = np.asarray(q)
-    return Rotation.from_quat(np.concatenate([q[..., 1:], q[..., :1]], axis=-1))
+    return float((scipy_rotation(q0).inv() * scipy_rotation(q1)).magnitude())
 
 
 @functools.lru_cache(maxsize=None)
@@ -79,7 +57,7 @@ def _chain_problem():
     q_goal[1] = q_init[1]
     t = np.asarray(skel.offsets).copy()
     t[0] = [0.3, -0.2, 0.1]
-    goal = np.asarray(_fk(skel, q_goal, t).end_site_positions[0])
+    goal = np.asarray(numpy_fk(skel, q_goal, t).end_site_positions[0])
     args = (q_init.copy(), t.copy(), goal.copy())
     sol = solve_ik_ccd(skel, ik.Target("j3_End", goal), q_init, t, frozen=("j1",), root_translation="fixed")
     # nothing the caller passed was modified
@@ -95,7 +73,7 @@ def test_chain_reaches_single_position_target():
     assert bool(sol.success), (solvers.RESULTS[sol.result], sol.position_errors)
     assert sol.result == solvers.RESULTS.successful
     # independent check by FK of the returned pose
-    end = np.asarray(_fk(skel, sol.rotations, sol.translations).end_site_positions[0])
+    end = np.asarray(numpy_fk(skel, sol.rotations, sol.translations).end_site_positions[0])
     assert np.linalg.norm(end - goal) <= tol
     assert_close("position_errors", sol.position_errors[0], np.linalg.norm(end - goal), atol=1e-12)
     assert_close("unit rotations", np.linalg.norm(np.asarray(sol.rotations), axis=-1), np.ones(4), atol=1e-12)
@@ -116,9 +94,9 @@ def test_one_sweep_is_the_weighted_wahba_optimum():
     on the same vectors, and check no nearby rotation does better."""
     skel = small_skeleton()
     q, t = random_pose(skel, 20)
-    goal = _fk(skel, *random_pose(skel, 21))
+    goal = numpy_fk(skel, *random_pose(skel, 21))
     targets = (
-        ik.Target("forearm_End", goal.end_site_positions[1], _world_quats(goal.rotations)[4], 2.0),
+        ik.Target("forearm_End", goal.end_site_positions[1], wxyz(goal.rotations)[4], 2.0),
         ik.Target("forearm", position=goal.positions[4], weight=0.5),
     )
     s = 0.3
@@ -127,7 +105,7 @@ def test_one_sweep_is_the_weighted_wahba_optimum():
     assert int(sol.stats["num_steps"]) == 1
 
     # reference: the optimal world rotation dR about the arm's pivot, from scipy
-    out = _fk(skel, q, t)
+    out = numpy_fk(skel, q, t)
     arm, fore = skel.index("arm"), skel.index("forearm")
     p = np.asarray(out.positions[arm])
     x = np.stack([np.asarray(out.end_site_positions[1]), np.asarray(out.positions[fore])])
@@ -143,7 +121,7 @@ def test_one_sweep_is_the_weighted_wahba_optimum():
     dR = dR.as_matrix()
     Q_par = np.asarray(out.rotations[skel.parents[arm]])
     expected = Q_par.T @ dR @ np.asarray(out.rotations[arm])
-    got = _wxyz_to_scipy(sol.rotations[arm]).as_matrix()
+    got = scipy_rotation(sol.rotations[arm]).as_matrix()
     assert_close("arm rotation after one sweep", got, expected, atol=_ATOL_STEP)
     # every other joint is frozen, the root translation fixed
     others = [j for j in range(skel.num_joints) if j != arm]
@@ -164,8 +142,8 @@ def test_one_sweep_is_the_weighted_wahba_optimum():
 def _tree_targets(skel, seed):
     """Three targets from FK of a random pose (with the offsets as translations: reachable)."""
     q, _ = random_pose(skel, seed)
-    goal = _fk(skel, q, skel.offsets)
-    quats = _world_quats(goal.rotations)
+    goal = numpy_fk(skel, q, skel.offsets)
+    quats = wxyz(goal.rotations)
     return (
         ik.Target("forearm_End", goal.end_site_positions[1], quats[4], 2.0),
         ik.Target("head_End", position=goal.end_site_positions[0]),
@@ -190,13 +168,13 @@ def test_multi_target_cost_decreases_and_errors_end_small():
     assert cost[0] > 1e-2 and cost[-1] < 1e-7 * cost[0], (cost[0], cost[-1])
     assert_close("cost", sol.stats["cost"], cost[-1], atol=0.0)
     # errors by an independent FK
-    out = _fk(skel, sol.rotations, sol.translations)
+    out = numpy_fk(skel, sol.rotations, sol.translations)
     tol = 1e-4 * float(np.abs(np.asarray(skel.offsets)).sum())
     goal = _tree_targets(skel, 30)
     assert np.linalg.norm(out.end_site_positions[0] - np.asarray(goal[1].position)) <= tol
     assert np.linalg.norm(out.end_site_positions[1] - np.asarray(goal[0].position)) <= tol
     R_leg = Rotation.from_matrix(np.asarray(out.rotations[5]))
-    assert (R_leg.inv() * _wxyz_to_scipy(goal[2].orientation)).magnitude() <= 1e-4
+    assert (R_leg.inv() * scipy_rotation(goal[2].orientation)).magnitude() <= 1e-4
 
 
 def test_vmap_equals_loop_and_fixed_sweeps():
@@ -251,33 +229,12 @@ def test_bad_input():
 EFFECTORS = ("LeftHand", "RightHand", "LeftToeBase_End", "RightToeBase_End", "Head_End")
 
 
-def _cmu_targets(skel, seed):
-    """Position and orientation targets for five effectors from FK of a random pose within +-45
-    degrees of the rest pose, root rotated freely and moved (as tests/test_ik.py does)."""
-    rng = np.random.default_rng(seed)
-    eul = rng.uniform(-np.pi / 4, np.pi / 4, size=(skel.num_joints, 3))
-    q = Rotation.from_euler("ZYX", eul).as_quat()  # xyzw
-    q[0] = Rotation.from_rotvec(rng.normal(size=3)).as_quat()
-    q = np.concatenate([q[:, 3:], q[:, :3]], axis=1)  # -> wxyz
-    t = np.asarray(skel.offsets).copy()
-    t[0] = rng.normal(size=3) * 5
-    out = _fk(skel, q, t)
-    pos = np.concatenate([out.positions, out.end_site_positions])
-    quats = _world_quats(out.rotations)
-    tg = []
-    for name in EFFECTORS:
-        i = skel.site_index(name)
-        owner = i if i < skel.num_joints else skel.end_site_parents[i - skel.num_joints]
-        tg.append(ik.Target(name, pos[i], quats[owner]))
-    return tuple(tg)
-
-
 def test_cmu_skeleton_five_effectors():
     """Reachable position + orientation targets on the 31-joint CMU skeleton from the rest pose:
     CCD gets there, but needs ~100 sweeps (Levenberg-Marquardt needs ~10 iterations)."""
     shared_data_dir()
     skel, _, _ = shared_clip("cmu_01_01_trim300")
-    sol = solve_ik_ccd(skel, _cmu_targets(skel, 0), skel.rest_rotations(), None, max_sweeps=400)
+    sol = solve_ik_ccd(skel, random_site_targets(skel, 0, EFFECTORS), skel.rest_rotations(), None, max_sweeps=400)
     cost = np.asarray(sol.stats["cost_history"])
     n = int(sol.stats["num_steps"])
     assert bool(sol.success), (solvers.RESULTS[sol.result], sol.position_errors, sol.orientation_errors)

@@ -4,7 +4,6 @@ of the own solvers and of the optimistix / jaxopt adapters (against the backends
 """
 
 import dataclasses
-import functools
 import warnings
 
 import equinox as eqx
@@ -35,6 +34,7 @@ from .test_least_squares import (
     expfit,
     linear,
     rosenbrock,
+    solve,
 )
 
 # ---------------------------------------------------------------------------------------------
@@ -213,14 +213,6 @@ def _black_box(name: str, fn, y0, max_steps: tuple[int, ...]):
     return jax.jit(lambda y0: [run(y0, steps) for steps in max_steps])(y0)
 
 
-@functools.lru_cache(maxsize=None)
-def _plain(solver: str) -> solvers.Solution:
-    """The Rosenbrock problem solved by an adapter without ``stop`` (test_least_squares' ``solve``
-    solves the whole catalogue in one program: more to compile where this file runs alone)."""
-    p = PROBLEMS["rosenbrock"]
-    return least_squares(p.fn, SOLVERS[solver](), jnp.asarray(p.y0))
-
-
 def _cost_at_most(y, r, target):
     """The early stop of the adapter tests: ``0.5 |r|^2 <= target`` (``target`` comes in ``args``)."""
     return 0.5 * (r @ r) <= target
@@ -236,7 +228,7 @@ def test_adapters_without_stop_equal_the_backends(solver):
     its value and step count are those of ``optx.least_squares`` / jaxopt's ``run``."""
     p = PROBLEMS["rosenbrock"]
     y0 = jnp.asarray(p.y0)
-    sol = _plain(solver)
+    sol = solve("rosenbrock", solver)
     [(value, num_steps)] = _black_box(solver, p.fn, y0, (256,))
     assert int(sol.stats["num_steps"]) == int(num_steps), solver
     assert_close(f"{solver}: value", sol.value, value, atol=1e-14)
@@ -253,7 +245,7 @@ def test_adapters_stop_at_the_first_iterate_meeting_stop(solver):
     sol = least_squares(_rosenbrock_args, SOLVERS[solver](), y0, target, stop=_cost_at_most)
     assert sol.result == RESULTS.successful, RESULTS[sol.result]
     k = int(sol.stats["num_steps"])
-    assert 1 < k < int(_plain(solver).stats["num_steps"]), k
+    assert 1 < k < int(solve("rosenbrock", solver).stats["num_steps"]), k
     assert float(sol.stats["cost"]) <= float(target)
     (at_k, _), (before, _) = _black_box(solver, p.fn, y0, (k, k - 1))
     assert_close(f"{solver}: value after {k} steps", sol.value, at_k, atol=1e-14)

@@ -103,7 +103,7 @@ def test_finite_horizon_matches_reference():
     sol = lqr(stack(ref["A"]), stack(ref["B"]), stack(ref["Q"]), stack(ref["R"]), np.array(ref["Qf"]),
               np.array(ref["x0"]), throw=True)
     assert sol.result == RESULTS.successful
-    sol = _to_numpy(sol)
+    sol = jax.device_get(sol)
     # The reference applies u = -K x; lqr applies u = K x + k.
     assert_close("Ks", -sol.Ks, ref["K_t"], rtol=_TOL_REF, atol=_TOL_REF)
     assert_close("ks", sol.ks, np.zeros((N, 1)), atol=_TOL_REF)
@@ -165,18 +165,13 @@ def kkt_solve(p: dict, x0: np.ndarray):
     return z[:nx].reshape(T + 1, n), z[nx:].reshape(T, m), cost, z, H, h
 
 
-def _to_numpy(sol):
-    """``sol`` with its arrays in numpy, for the checks that follow."""
-    return jax.tree.map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, sol)
-
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_lqr_matches_dense_kkt(seed):
     p = random_lq_problem(seed)
     kw = {k: p[k] for k in ("S", "q", "r", "qT", "c")}
     sol = lqr(p["A"], p["B"], p["Q"], p["R"], p["QT"], p["x0"], **kw)
     assert sol.result == RESULTS.successful
-    sol = _to_numpy(sol)  # the arithmetic below in numpy (eager jax ops compile one program each)
+    sol = jax.device_get(sol)  # the arithmetic below in numpy (eager jax ops compile one program each)
     xs, us, cost, z, H, h = kkt_solve(p, p["x0"])
     assert_close("xs", sol.xs, xs, atol=_TOL_KKT, rtol=_TOL_KKT)
     assert_close("us", sol.us, us, atol=_TOL_KKT, rtol=_TOL_KKT)

@@ -12,7 +12,6 @@ about 40 of them in this file).
 from __future__ import annotations
 
 import re
-from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -55,10 +54,9 @@ _FA, _FB, _W = 60, 30, 10  # the transition the library and CLI tests share
 # ------------------------------------------------------------------------------------------------
 
 
-def _host(m: Motion) -> SimpleNamespace:
-    """A clip's arrays as NumPy (for slicing and indexing without compiling eager programs); idempotent."""
-    return SimpleNamespace(rotations=np.asarray(m.rotations), translations=np.asarray(m.translations),
-                           num_frames=m.num_frames, frame_time=np.asarray(m.frame_time))
+def _host(m: Motion) -> Motion:
+    """The clip with NumPy arrays (``jax.device_get``), for slicing and indexing without compiling eager programs."""
+    return jax.device_get(m)
 
 
 def _R(q_wxyz) -> Rotation:
