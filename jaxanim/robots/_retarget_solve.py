@@ -356,13 +356,17 @@ def _converged(accept, mu, cost, actual, predicted, delta, rtol, xtol):
         ((actual <= scale) & (predicted <= scale)) | (jnp.max(jnp.abs(delta)) <= xtol))
 
 
-def _placeholder(robot, prob, lay, q0, frames, opts):
+def _placeholder(prob, lay, q0, opts):
     """The linearization the loop starts from, before its first trip linearizes ``q0``: ``J'J`` the identity and
-    every other term 0, so that the step computed from it (and discarded) is finite, in value and derivative."""
-    shapes = jax.eval_shape(lambda q: _linearize(robot, prob, lay, q, frames, opts), q0)
-    lin = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-    n = shapes[1].shape[-1]
-    return (lin[0], jnp.broadcast_to(jnp.eye(n, dtype=shapes[1].dtype), shapes[1].shape)) + lin[2:]
+    every other term 0, so that the step computed from it (and discarded) is finite, in value and derivative.
+    Built from the shapes (the smoothness terms' by ``eval_shape``, which does not trace the kinematics)."""
+    T, n, dtype = q0.shape[0], lay.nv, q0.dtype
+    P = sum(len(f) for f in prob.foot_points)
+    zeros = lambda *shape: jnp.zeros(shape, dtype)  # noqa: E731
+    pair = jax.eval_shape(lambda q: _pair_terms(lay, q, prob, opts), q0)
+    pair = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), pair)
+    return (zeros(), jnp.broadcast_to(jnp.eye(n, dtype=dtype), (T, n, n)), zeros(T, n), pair[:4],
+            (zeros(T, P), zeros(T, P, n), jnp.zeros((T, P), bool)))
 
 
 def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
@@ -373,7 +377,7 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
     clip of a chunk of :data:`RETARGET_LANES` has converged) and still has a reverse-mode derivative. Its first
     trip is the linearization at ``q0`` (its step, from :func:`_placeholder`, is discarded and not counted), as in
     :mod:`solvers`' least squares: the program then holds one linearization, the body's, instead of a second one
-    before the loop (G1, the CMU clip: 7.6 -> 5.3 s to compile, 2.0 -> 1.3 s to trace and lower)."""
+    before the loop (G1, the CMU clip: 7.3 -> 4.8 s to compile, 1.9 -> 1.45 s to trace and lower)."""
     cones = robot.jnt_range.astype(dtype)[lay.cone_joints, 1]
     rtol, xtol = opts.rtol.astype(dtype), opts.xtol.astype(dtype)
 
@@ -403,7 +407,7 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
         return (pick(q_new, q), pick(lin_new, lin), (mu, nu), (last, touching), converged, ~(ok | first),
                 k + jnp.where(first, 0, 1), jnp.asarray(False))
 
-    lin0 = _placeholder(robot, prob, lay, q0, frames, opts)
+    lin0 = _placeholder(prob, lay, q0, opts)
     damping = (jnp.asarray(1e-4, dtype), jnp.asarray(2.0, dtype))  # mu relative to J'J's diagonal
     held = (jnp.zeros_like(lin0[2]), jnp.zeros(lin0[4][0].shape, bool))  # the last step, the points it touched
     start = (q0, lin0, damping, held, jnp.asarray(False), jnp.asarray(False), jnp.asarray(0, jnp.int32),
