@@ -382,7 +382,8 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
     rtol, xtol = opts.rtol.astype(dtype), opts.xtol.astype(dtype)
 
     def step(carry):
-        q, lin, (mu, nu), (last, touching), _, _, k, first = carry
+        q, lin, (mu, nu), (last, touching), _, _, k = carry  # k: trips so far, the first one not a step
+        first = k == 0
         cost, JtJ, Jtr, (c, o, a, acc), ground = lin
         g = _gradient(Jtr, c, o, a, acc)
         free = _free(lay, rng, q, g, last, dtype)
@@ -404,17 +405,15 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
         mu, nu = jnp.where(first, mu, mu_new), jnp.where(first, nu, nu_new)
         last = jnp.where(first | ~(accept | (free > 0)), last, delta)  # rejected: a held coordinate stays held
         touching = jnp.where(first, touching, touched)
-        return (pick(q_new, q), pick(lin_new, lin), (mu, nu), (last, touching), converged, ~(ok | first),
-                k + jnp.where(first, 0, 1), jnp.asarray(False))
+        return pick(q_new, q), pick(lin_new, lin), (mu, nu), (last, touching), converged, ~(ok | first), k + 1
 
     lin0 = _placeholder(prob, lay, q0, opts)
     damping = (jnp.asarray(1e-4, dtype), jnp.asarray(2.0, dtype))  # mu relative to J'J's diagonal
     held = (jnp.zeros_like(lin0[2]), jnp.zeros(lin0[4][0].shape, bool))  # the last step, the points it touched
-    start = (q0, lin0, damping, held, jnp.asarray(False), jnp.asarray(False), jnp.asarray(0, jnp.int32),
-             jnp.asarray(True))
-    q, lin, _, _, converged, _, k, _ = eqxi.while_loop(lambda c: ~(c[4] | c[5]), step, start,
-                                                    max_steps=opts.iterations + 1, kind="checkpointed")
-    return q, lin[0], converged, k
+    start = (q0, lin0, damping, held, jnp.asarray(False), jnp.asarray(False), jnp.asarray(0, jnp.int32))
+    q, lin, _, _, converged, _, trips = eqxi.while_loop(lambda c: ~(c[4] | c[5]), step, start,
+                                                     max_steps=opts.iterations + 1, kind="checkpointed")
+    return q, lin[0], converged, trips - 1
 
 
 @jit
