@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import gc
 import os
 import pathlib
@@ -84,12 +85,12 @@ def pytest_collection_modifyitems(config, items):
     after 300 s: replayed on the per-file times above, one file at a time to the worker that is free first, the two
     workers finished at 607 and 632 s in that order, at 619 and 620 s in this one. Within a file the order is
     unchanged."""
-    count: dict[str, int] = {}
-    for item in items:
-        name = item.nodeid.split("::")[0]
-        count[name] = count.get(name, 0) + 1
+    def file(item):
+        return item.nodeid.split("::")[0]
+
+    count = collections.Counter(map(file, items))
     rank = {f"tests/{stem}.py": i for i, stem in enumerate(_LONGEST)}
-    items.sort(key=lambda item: (rank.get(item.nodeid.split("::")[0], len(rank)), -count[item.nodeid.split("::")[0]]))
+    items.sort(key=lambda item: (rank.get(file(item), len(rank)), -count[file(item)]))
 
 
 def pytest_unconfigure(config):
