@@ -10,6 +10,7 @@ import pytest
 
 import jaxanim
 from jaxanim import rotations as rot
+from jaxanim.kinematics._fk import site_transforms_sequential
 
 from .conftest import shared_bvh_files, shared_data_dir
 from .helpers import assert_close, batched_fk, jitted_fk, random_pose, shared_clip, small_skeleton
@@ -224,3 +225,18 @@ def test_fk_and_center_of_mass_against_numpy():
     batched = jax.jit(jax.vmap(lambda q, t, m: jaxanim.center_of_mass(skel, q, t, m), in_axes=(0, 0, None)))(
         q[None], t[None], masses)
     assert_close("vmap com", batched[0], com, atol=1e-15)
+
+
+def test_site_transforms_sequential_against_numpy():
+    """The scanned FK of a few sites (a solve's final check) equals the hand-written numpy FK: joints and End
+    Sites in any order, an End Site's rotation its joint's."""
+    skel = small_skeleton()
+    q, t = random_pose(skel, 7)
+    J = skel.num_joints
+    sites = (J + 1, 3, 0, J, 5)
+    p, R = jax.jit(lambda q, t: site_transforms_sequential(skel, q, t, sites))(q, t)
+    R_np, P_np, P_end = _numpy_fk(skel, q, t)
+    P_all = np.concatenate([P_np, P_end])
+    owner = [s if s < J else skel.end_site_parents[s - J] for s in sites]
+    assert_close("site positions", p, P_all[list(sites)], atol=1e-14)
+    assert_close("site rotations", R, R_np[owner], atol=1e-14)

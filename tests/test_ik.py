@@ -347,6 +347,16 @@ def test_stop_at_tolerance_ends_the_solve_once_targets_are_met():
     assert not bool(fewer.success)
     assert (float(jnp.max(fewer.position_errors)) > tol or float(jnp.max(fewer.orientation_errors)) > tol), (
         fewer.position_errors, fewer.orientation_errors)
+    # the reported errors are those of the returned pose, by an independent FK (numpy / scipy)
+    fk = numpy_fk(skel, fewer.rotations, fewer.translations)
+    goal = targets[0]
+    forearm = skel.site_index("forearm_End") - skel.num_joints
+    expect_p = np.linalg.norm(fk.end_site_positions[forearm] - np.asarray(goal.position))
+    R_site = fk.rotations[skel.end_site_parents[forearm]]
+    expect_o = (Rotation.from_matrix(R_site) * scipy_rotation(goal.orientation).inv()).magnitude()
+    assert_close("position error", fewer.position_errors[0], expect_p, atol=1e-12)
+    assert_close("orientation error", fewer.orientation_errors[0], expect_o, atol=1e-12)
+    assert float(fewer.orientation_errors[0]) > 1e-4  # away from zero, where any formula agrees
 
 
 def test_stop_at_tolerance_with_the_optimistix_adapter():

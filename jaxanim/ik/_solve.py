@@ -28,14 +28,14 @@ import solvers
 from .. import rotations as rot
 from .._errors import JaxanimError, check_shape
 from .._types import Array, Float
-from ..kinematics._fk import forward_kinematics
+from ..kinematics._fk import site_transforms_sequential
 from ..kinematics._limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit
 from ..kinematics._limits import bone_axis, limit_violation as limit_violation
 from ..robots._ik import solve_ik_robot
 from ..robots._robot import Robot
 from ..skeleton._skeleton import Motion, Skeleton
 from ._problem import _layout as _layout, _pose, _residual, _residual_and_jacobian as _residual_and_jacobian
-from ._problem import _setup, _site_rotations, _stop
+from ._problem import _setup, _stop
 from ._targets import Target as Target, targets_from_json as targets_from_json
 
 
@@ -207,9 +207,8 @@ def _solve(skeleton, layout, targets, q0, translations, reference, options: IKOp
     sol = solvers.least_squares(_residual, solver, y0, data, jac=True, bounds=bounds, stop=stop, throw=options.throw)
     def finish(value, data):  # the pose and its target errors, by an FK of the solution
         q, t = _pose(value, data)
-        out = forward_kinematics(skeleton, q, t)
-        R_world_sites = _site_rotations(skeleton, out, layout.site_idx)
-        return (q, t) + _target_errors(layout, data.targets, out.site_positions(), R_world_sites, dtype)
+        p_sites, R_sites = site_transforms_sequential(skeleton, q, t, layout.site_idx)
+        return (q, t) + _target_errors(data.targets, p_sites, R_sites, dtype)
 
     # at the compacted loop's shapes (lane-width chunks) when the solve ran one
     q, t, pe, oe = solvers.lane_map(finish, sol.value, data, chunks=not getattr(solver, "fixed_steps", False))
@@ -329,20 +328,32 @@ def solve_ik(
     return _solve(skeleton, layout, targets, q0, translations, reference, options)
 
 
-def _target_errors(layout, targets, p_world_sites, R_world_sites, dtype):
-    """``(position errors [targets], orientation errors [targets])`` (zero where a target has none),
-    each kind computed for all its targets at once (one traced rotation conversion, not one per target)."""
+def _angle_between(R, G):
+    """The angle in ``[0, pi]`` of ``R G^T`` (``[..., 3, 3]`` rotations), as ``atan2(sin, cos)`` of its
+    skew part and trace: accurate to round-off at every angle, and a few small kernels in the compiled
+    solve (a conversion to quaternions first, Shepperd's four cases, compiled several times longer)."""
+    M = sum(R[..., :, c, None] * G[..., None, :, c] for c in range(3))
+    sin = 0.5 * jnp.sqrt((M[..., 2, 1] - M[..., 1, 2]) ** 2 + (M[..., 0, 2] - M[..., 2, 0]) ** 2
+                         + (M[..., 1, 0] - M[..., 0, 1]) ** 2)
+    cos = 0.5 * (M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2] - 1)
+    return jnp.arctan2(sin, cos)
+
+
+def _target_errors(targets, p_sites, R_sites, dtype):
+    """``(position errors [targets], orientation errors [targets])`` (zero where a target has none) from
+    each target's site position ``p_sites [targets, 3]`` and rotation ``R_sites [targets, 3, 3]``,
+    each kind computed for all its targets at once (one traced angle computation, not one per target)."""
     k = len(targets)
     pe, oe = jnp.zeros((k,), dtype), jnp.zeros((k,), dtype)
     pos = np.asarray([i for i, t in enumerate(targets) if t.position is not None], dtype=np.int32)
     ori = np.asarray([i for i, t in enumerate(targets) if t.orientation is not None], dtype=np.int32)
     if pos.size:
         goal = jnp.stack([targets[i].position.astype(dtype) for i in pos])
-        p = p_world_sites[np.asarray([layout.site_idx[i] for i in pos])]
+        p = p_sites[pos]
         pe = pe.at[pos].set(jnp.linalg.norm(p - goal, axis=-1))
     if ori.size:
         goal = jnp.stack([targets[i].orientation.astype(dtype) for i in ori])
-        oe = oe.at[ori].set(rot.quat_distance(rot.matrix_to_quat(R_world_sites[ori]), goal))
+        oe = oe.at[ori].set(_angle_between(R_sites[ori], rot.quat_to_matrix(goal)))
     return pe, oe
 
 

@@ -147,6 +147,40 @@ def _fk_levels(parents: tuple[int, ...], R_local, t_local):
     return R_world, p_world
 
 
+def site_transforms_sequential(skeleton: Skeleton, rotations, translations, sites):
+    """``(positions [S, 3], rotations [S, 3, 3])`` of the sites ``sites`` (joint or End Site indices,
+    :meth:`Skeleton.site_index`; an End Site's rotation is its joint's): the products of
+    :func:`forward_kinematics`, one joint after another in a ``lax.scan`` (in its level order).
+
+    For a one-off evaluation beside a large program (a solve's final check): it compiles to one small
+    loop body instead of the per-level kernels, and runs ``joints - 1`` short sequential steps.
+    """
+    R_local, t_local = _prepare(skeleton, rotations, translations)
+    parents = skeleton.parents
+    plan = _plan(parents)
+    order = np.asarray(plan.order[1:], dtype=np.int32)
+    par = np.asarray([parents[j] for j in plan.order[1:]], dtype=np.int32)
+
+    def body(carry, x):
+        R_all, p_all = carry
+        j, pj = x
+        R_par = R_all[pj]
+        R_j = einsum("ab,bc->ac", R_par, R_local[j])
+        p_j = p_all[pj] + einsum("ab,b->a", R_par, t_local[j])
+        return (R_all.at[j].set(R_j), p_all.at[j].set(p_j)), None
+
+    (R_world, p_world), _ = lax.scan(body, (R_local, t_local), (order, par))
+    J = skeleton.num_joints
+    owner = np.asarray([s if s < J else skeleton.end_site_parents[s - J] for s in sites], dtype=np.int32)
+    R_sites = R_world[owner]
+    p_sites = p_world[owner]
+    es = [k for k, s in enumerate(sites) if s >= J]
+    if es:
+        off = skeleton.end_site_offsets.astype(p_world.dtype)[np.asarray([sites[k] - J for k in es])]
+        p_sites = p_sites.at[np.asarray(es)].add(einsum("eab,eb->ea", R_sites[np.asarray(es)], off))
+    return p_sites, R_sites
+
+
 def _end_sites(skeleton: Skeleton, R_world, p_world):
     if skeleton.num_end_sites == 0:
         return jnp.zeros((0, 3), dtype=p_world.dtype)
