@@ -198,8 +198,8 @@ def phys_cmu_character():
     """``(skeleton, motion, q0, t0, character, state)``: the CMU clip 01_01 and the physics character
     built in its first frame on complementarity ground (``contact.make_ground()``'s default), built
     once per process for the files that all use it (test_balance, test_character, the simulate CLI's
-    warm-up): building it dispatches a few hundred small programs op by op, which also land in the
-    run's compilation cache for the other worker."""
+    warm-up): building it dispatches a few hundred small programs op by op (each worker builds its own:
+    they compile in under the run's compilation-cache floor of 2 s, so none is shared)."""
     from jaxanim import character, contact
 
     skel, motion = read_bvh(SHARED_DATA / "bvh" / "cmu_01_01_trim300.bvh")[:2]
