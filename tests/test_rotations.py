@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from jaxanim import JaxanimError
 from jaxanim import rotations as rot
+from jaxanim.rotations._matrices import angle_between_matrices
 
 _ATOL = 1e-12  # float64 conversions against scipy / closed forms
 _ATOL_SINGULAR = 1e-9  # float64 round trips at angle 0 / pi
@@ -616,3 +617,16 @@ def test_inputs_not_modified():
     rot.sixd_to_matrix(np.concatenate([v, ang], -1))
     for x, c in zip(inputs, copies, strict=True):
         np.testing.assert_array_equal(x, c)
+
+
+def test_angle_between_matrices_against_scipy_at_every_angle():
+    """The solvers' final checks' angle of ``R G^T`` (atan2 of the skew part and the trace) equals the angle of
+    the rotation scipy built, from 1e-9 rad to pi (an arccos of the trace would lose half the digits at 1e-9)."""
+    rng = np.random.default_rng(3)
+    angles = np.array([1e-9, 1e-6, 1e-3, 0.5, 2.0, np.pi - 1e-3, np.pi - 1e-7])
+    axes = rng.normal(size=(angles.size, 3))
+    d = Rotation.from_rotvec(axes / np.linalg.norm(axes, axis=1, keepdims=True) * angles[:, None])
+    G = Rotation.random(angles.size, random_state=4)
+    R = d * G  # R G^-1 = d
+    got = jax.jit(angle_between_matrices)(jnp.asarray(R.as_matrix()), jnp.asarray(G.as_matrix()))
+    np.testing.assert_allclose(np.asarray(got), angles, rtol=0, atol=4e-15)

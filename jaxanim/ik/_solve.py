@@ -31,6 +31,7 @@ from .._types import Array, Float
 from ..kinematics._fk import site_transforms_sequential
 from ..kinematics._limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit
 from ..kinematics._limits import bone_axis, limit_violation as limit_violation
+from ..rotations._matrices import angle_between_matrices
 from ..robots._ik import solve_ik_robot
 from ..robots._robot import Robot
 from ..skeleton._skeleton import Motion, Skeleton
@@ -328,17 +329,6 @@ def solve_ik(
     return _solve(skeleton, layout, targets, q0, translations, reference, options)
 
 
-def _angle_between(R, G):
-    """The angle in ``[0, pi]`` of ``R G^T`` (``[..., 3, 3]`` rotations), as ``atan2(sin, cos)`` of its
-    skew part and trace: accurate to round-off at every angle, and a few small kernels in the compiled
-    solve (a conversion to quaternions first, Shepperd's four cases, compiled several times longer)."""
-    M = sum(R[..., :, c, None] * G[..., None, :, c] for c in range(3))
-    sin = 0.5 * jnp.sqrt((M[..., 2, 1] - M[..., 1, 2]) ** 2 + (M[..., 0, 2] - M[..., 2, 0]) ** 2
-                         + (M[..., 1, 0] - M[..., 0, 1]) ** 2)
-    cos = 0.5 * (M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2] - 1)
-    return jnp.arctan2(sin, cos)
-
-
 def _target_errors(targets, p_sites, R_sites, dtype):
     """``(position errors [targets], orientation errors [targets])`` (zero where a target has none) from
     each target's site position ``p_sites [targets, 3]`` and rotation ``R_sites [targets, 3, 3]``,
@@ -353,7 +343,7 @@ def _target_errors(targets, p_sites, R_sites, dtype):
         pe = pe.at[pos].set(jnp.linalg.norm(p - goal, axis=-1))
     if ori.size:
         goal = jnp.stack([targets[i].orientation.astype(dtype) for i in ori])
-        oe = oe.at[ori].set(_angle_between(R_sites[ori], rot.quat_to_matrix(goal)))
+        oe = oe.at[ori].set(angle_between_matrices(R_sites[ori], rot.quat_to_matrix(goal)))
     return pe, oe
 
 
