@@ -238,39 +238,35 @@ def _jacobian(robot: Robot, lay: _Layout, kin, points, J_rot, dtype):
     return jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)
 
 
-def _errors_and_rows(lay, targets, points, R, jacp, jacr, dtype, weighted=True):
+def _errors_and_rows(lay, targets, points, R, jacp, jacr, dtype):
     """Residual ``sqrt(w) (p - p*)`` and ``sqrt(w) log(R R*^T)`` per target (position block, then
-    orientation block, in target order) and their rows (``None`` jacobians: residual only); each
-    kind is computed for all its targets at once, then put in order by a static gather."""
+    orientation block, in target order) and their rows; each kind is computed for all its targets at
+    once, then put in order by a static gather."""
     pos = [i for i, h in enumerate(lay.has_pos) if h]
     ori = [i for i, h in enumerate(lay.has_ori) if h]
-    sqrt_w = jnp.sqrt(jnp.stack([jnp.asarray(t.weight if weighted else 1.0, dtype) for t in targets]))
+    sqrt_w = jnp.sqrt(jnp.stack([jnp.asarray(t.weight, dtype) for t in targets]))
     res, rows = [], []
     if pos:
         ip = np.asarray(pos)
         goal = jnp.stack([jnp.asarray(targets[i].position, dtype) for i in pos])
         res.append(sqrt_w[ip, None] * (points[ip] - goal))
-        if jacp is not None:
-            rows.append(sqrt_w[ip, None, None] * jacp[ip])
+        rows.append(sqrt_w[ip, None, None] * jacp[ip])
     if ori:
         io = np.asarray(ori)
         R_goal = rot.quat_to_matrix(jnp.stack([jnp.asarray(targets[i].orientation, dtype) for i in ori]))
         e = rot.matrix_to_rotvec(_mm(R[io], jnp.swapaxes(R_goal, -1, -2)))  # world frame
-        if jacr is not None:
-            # e as a kernel's output of its own before its left Jacobian (as in the skeleton IK's
-            # residual, jaxanim/ik/_problem.py): a product with the identity, exact
-            e = einsum("ka,ab->kb", e, jnp.eye(3, dtype=dtype))
+        # e as a kernel's output of its own before its left Jacobian (as in the skeleton IK's residual,
+        # jaxanim/ik/_problem.py): a product with the identity, exact
+        e = einsum("ka,ab->kb", e, jnp.eye(3, dtype=dtype))
         res.append(sqrt_w[io, None] * e)
-        if jacr is not None:
-            Li = rot.left_jacobian_inverse(e)
-            rows.append(sqrt_w[io, None, None] * sum(Li[:, :, c, None] * jacr[io, c, None, :] for c in range(3)))
+        Li = rot.left_jacobian_inverse(e)
+        rows.append(sqrt_w[io, None, None] * sum(Li[:, :, c, None] * jacr[io, c, None, :] for c in range(3)))
     order, kp = [], len(pos)
     for i in range(len(targets)):
         order += ([pos.index(i)] if i in pos else []) + ([kp + ori.index(i)] if i in ori else [])
     order = np.asarray(order)
     r = jnp.concatenate(res)[order].reshape(-1)
-    J = jnp.concatenate(rows)[order].reshape(r.shape[0], -1) if rows else None
-    return r, J
+    return r, jnp.concatenate(rows)[order].reshape(r.shape[0], -1)
 
 
 def _residual(y, data: _Data):
@@ -302,9 +298,9 @@ def _stop(y, r, data: _Data):
 
 
 def _target_errors(lay, targets, points, R, dtype):
-    """``(position errors [K], orientation errors [K])``, zero where a target has none; the angle of
-    ``R R*^T`` by :func:`~jaxanim.rotations._matrices.angle_between_matrices` (its rotation vector's norm, in
-    kernels that compile several times faster)."""
+    """``(position errors [K], orientation errors [K])``, zero where a target has none. The angle of ``R R*^T``
+    (its rotation vector's norm) comes from :func:`~jaxanim.rotations._matrices.angle_between_matrices`, whose
+    kernels compile several times faster than a rotation vector's."""
     K = len(targets)
     pe, oe = jnp.zeros((K,), dtype), jnp.zeros((K,), dtype)
     pos = np.asarray([i for i, h in enumerate(lay.has_pos) if h], dtype=np.int64)
