@@ -35,6 +35,7 @@ import os
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 from jax import lax
 from jax._src import core as jax_core
 
@@ -62,6 +63,15 @@ def check_precision(name: str, precision) -> lax.Precision:
     raise JaxanimError(
         f"{name}: expected a jax.lax.Precision or one of {sorted(_NAMES)}, got {precision!r}"
     )
+
+
+def own_kernel(x):
+    """``x`` itself, as the output of an XLA kernel of its own: a product with the identity over its last axis
+    (exact for finite values). XLA:CPU otherwise fuses the whole computation of a value into every output of its
+    consumers: in the IK residuals, the rotation vector's conversion (Shepperd's cases, the arctangent) was
+    rebuilt in each of the nine entries of its left Jacobian, one kernel that LLVM took 0.19 / 0.38 s to build in
+    float64 / float32. ``jax.lax.optimization_barrier`` does not do this: XLA:CPU removes it before fusion."""
+    return einsum("...a,ab->...b", x, jnp.eye(x.shape[-1], dtype=x.dtype))
 
 
 _FLAG = "xla_cpu_use_fusion_emitters"

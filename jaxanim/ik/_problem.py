@@ -37,7 +37,7 @@ import numpy as np
 
 from .. import rotations as rot
 from .._errors import JaxanimError
-from .._linalg import einsum, matmul
+from .._linalg import einsum, matmul, own_kernel
 from .._types import Array
 from ..kinematics._fk import forward_kinematics
 from ..kinematics._jacobians import jacobian_from_fk
@@ -245,11 +245,7 @@ def _target_rows(layout, targets, p_world_sites, R_world_sites, J_vars, shift, d
         R_site = R_world_sites[io]
         # R_site @ R_goal^T, written elementwise (a batch of 3x3 dots is slow under vmap on XLA:CPU)
         e = rot.matrix_to_rotvec(sum(R_site[..., :, c, None] * R_goal[..., None, :, c] for c in range(3)))
-        # e as a product with the identity (exact): XLA:CPU then computes it once, in a kernel of its own,
-        # instead of fusing the whole conversion (Shepperd's cases, the arctangent) into each of the nine
-        # entries of the left Jacobian below, one kernel that LLVM took 0.19 / 0.38 s to build in float64 /
-        # float32 (an optimization barrier is removed before fusion on the CPU); no slower to run
-        e = einsum("ka,ab->kb", e, jnp.eye(3, dtype=e.dtype))
+        e = own_kernel(e)  # computed once, not inside each entry of its left Jacobian below
         Li = rot.left_jacobian_inverse(e)  # [ko, 3, 3]
         J_ang = J_vars[io, 3:]  # [ko, 3, n]
         res.append(sqrt_w[io, None] * e)

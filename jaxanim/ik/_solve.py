@@ -31,8 +31,7 @@ from .._types import Array, Float
 from ..kinematics._fk import site_transforms_sequential
 from ..kinematics._limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit
 from ..kinematics._limits import bone_axis, limit_violation as limit_violation
-from ..rotations._matrices import angle_between_matrices
-from ..robots._ik import solve_ik_robot
+from ..robots._ik import solve_ik_robot, target_errors
 from ..robots._robot import Robot
 from ..skeleton._skeleton import Motion, Skeleton
 from ._problem import _layout as _layout, _pose, _residual, _residual_and_jacobian as _residual_and_jacobian
@@ -209,7 +208,7 @@ def _solve(skeleton, layout, targets, q0, translations, reference, options: IKOp
     def finish(value, data):  # the pose and its target errors, by an FK of the solution
         q, t = _pose(value, data)
         p_sites, R_sites = site_transforms_sequential(skeleton, q, t, layout.site_idx)
-        return (q, t) + _target_errors(data.targets, p_sites, R_sites, dtype)
+        return (q, t) + target_errors(data.targets, p_sites, R_sites, dtype)
 
     # at the compacted loop's shapes (lane-width chunks) when the solve ran one
     q, t, pe, oe = solvers.lane_map(finish, sol.value, data, chunks=not getattr(solver, "fixed_steps", False))
@@ -327,24 +326,6 @@ def solve_ik(
     layout, targets, q0 = _check_problem(skeleton, targets, rotations, translations, reference, options)
     options = _skeleton_defaults(skeleton, options)
     return _solve(skeleton, layout, targets, q0, translations, reference, options)
-
-
-def _target_errors(targets, p_sites, R_sites, dtype):
-    """``(position errors [targets], orientation errors [targets])`` (zero where a target has none) from
-    each target's site position ``p_sites [targets, 3]`` and rotation ``R_sites [targets, 3, 3]``,
-    each kind computed for all its targets at once (one traced angle computation, not one per target)."""
-    k = len(targets)
-    pe, oe = jnp.zeros((k,), dtype), jnp.zeros((k,), dtype)
-    pos = np.asarray([i for i, t in enumerate(targets) if t.position is not None], dtype=np.int32)
-    ori = np.asarray([i for i, t in enumerate(targets) if t.orientation is not None], dtype=np.int32)
-    if pos.size:
-        goal = jnp.stack([targets[i].position.astype(dtype) for i in pos])
-        p = p_sites[pos]
-        pe = pe.at[pos].set(jnp.linalg.norm(p - goal, axis=-1))
-    if ori.size:
-        goal = jnp.stack([targets[i].orientation.astype(dtype) for i in ori])
-        oe = oe.at[ori].set(angle_between_matrices(R_sites[ori], rot.quat_to_matrix(goal)))
-    return pe, oe
 
 
 @eqx.filter_jit

@@ -53,7 +53,7 @@ import solvers
 
 from .. import rotations as rot
 from .._errors import JaxanimError, check_float, check_shape
-from .._linalg import einsum
+from .._linalg import own_kernel
 from .._types import Array, Float
 from ..rotations._matrices import angle_between_matrices
 from ._kinematics import _check, _dof_columns, _kinematics, _mm, _plan, _target_frames, _targets
@@ -255,9 +255,7 @@ def _errors_and_rows(lay, targets, points, R, jacp, jacr, dtype):
         io = np.asarray(ori)
         R_goal = rot.quat_to_matrix(jnp.stack([jnp.asarray(targets[i].orientation, dtype) for i in ori]))
         e = rot.matrix_to_rotvec(_mm(R[io], jnp.swapaxes(R_goal, -1, -2)))  # world frame
-        # e as a kernel's output of its own before its left Jacobian (as in the skeleton IK's residual,
-        # jaxanim/ik/_problem.py): a product with the identity, exact
-        e = einsum("ka,ab->kb", e, jnp.eye(3, dtype=dtype))
+        e = own_kernel(e)  # computed once, not inside each entry of its left Jacobian below
         res.append(sqrt_w[io, None] * e)
         Li = rot.left_jacobian_inverse(e)
         rows.append(sqrt_w[io, None, None] * sum(Li[:, :, c, None] * jacr[io, c, None, :] for c in range(3)))
@@ -297,14 +295,16 @@ def _stop(y, r, data: _Data):
     return ok
 
 
-def _target_errors(lay, targets, points, R, dtype):
-    """``(position errors [K], orientation errors [K])``, zero where a target has none. The angle of ``R R*^T``
-    (its rotation vector's norm) comes from :func:`~jaxanim.rotations._matrices.angle_between_matrices`, whose
-    kernels compile several times faster than a rotation vector's."""
+def target_errors(targets, points, R, dtype):
+    """``(position errors [K], orientation errors [K])`` of ``targets`` (:class:`jaxanim.ik.Target` s) from each
+    target's point ``points [K, 3]`` and frame ``R [K, 3, 3]``, zero where a target has none; each kind for all
+    its targets at once. The angle of ``R R*^T`` (its rotation vector's norm) comes from
+    :func:`~jaxanim.rotations._matrices.angle_between_matrices`, whose kernels compile several times faster than
+    a rotation vector's. The final check of this solve and of the skeleton IK's (``jaxanim.ik``)."""
     K = len(targets)
     pe, oe = jnp.zeros((K,), dtype), jnp.zeros((K,), dtype)
-    pos = np.asarray([i for i, h in enumerate(lay.has_pos) if h], dtype=np.int64)
-    ori = np.asarray([i for i, h in enumerate(lay.has_ori) if h], dtype=np.int64)
+    pos = np.asarray([i for i, t in enumerate(targets) if t.position is not None], dtype=np.int64)
+    ori = np.asarray([i for i, t in enumerate(targets) if t.orientation is not None], dtype=np.int64)
     if pos.size:
         goal = jnp.stack([jnp.asarray(targets[i].position, dtype) for i in pos])
         pe = pe.at[pos].set(jnp.linalg.norm(points[pos] - goal, axis=-1))
@@ -363,7 +363,7 @@ def _solve(robot, layout, targets, qpos, reference, reg, weights, solver, ptol, 
     def finish(value, data):  # the configuration and its target errors, by a kinematics pass
         q, _ = _qpos(value, data)
         points, R, _ = _frames(data.robot, data.layout, q, dtype)
-        return (q,) + _target_errors(data.layout, data.targets, points, R, dtype)
+        return (q,) + target_errors(data.targets, points, R, dtype)
 
     q, pe, oe = solvers.lane_map(finish, sol.value, data, chunks=not getattr(solver, "fixed_steps", False))
     success = ((sol.result == solvers.RESULTS.successful) & jnp.all(pe <= data.position_tolerance)
