@@ -301,7 +301,7 @@ def _jacobian(config, batch):
 
 
 def _retarget(config, batch):
-    from jaxanim import robots
+    from jaxanim import retargeting, robots
 
     from .retarget import RetargetSizes, clip_problems
 
@@ -310,8 +310,8 @@ def _retarget(config, batch):
         raise FileNotFoundError(path)
     robot, sz = robots.load_robot(path), RetargetSizes()
     speeds = tuple(float(x) for x in jnp.linspace(*sz.speed_range, batch))
-    problems = robots.stack_problems(clip_problems(robot, speeds, sz.frames))
-    return jax.vmap(lambda p: robots.solve_retarget(robot, p).qpos), (problems,), batch * sz.frames
+    problems = retargeting.stack_problems(clip_problems(robot, speeds, sz.frames))
+    return jax.vmap(lambda p: retargeting.solve_retarget(robot, p).qpos), (problems,), batch * sz.frames
 
 
 def _ik(config, batch):
@@ -471,7 +471,7 @@ KERNELS: tuple[Kernel, ...] = (
            "halves again (Cholesky factorizations and triangular inverses only at the smallest blocks, looped over "
            "the batch, and small products), at a fraction of the CPU's peak because the blocks are small; the solve "
            "costs somewhat more than the linearization. Under `vmap` the clips run in chunks of `RETARGET_LANES` "
-           "(`jaxanim/robots/_retarget_solve.py`), each chunk until all of its clips have converged; the iterations "
+           "(`jaxanim/retargeting/_solve.py`), each chunk until all of its clips have converged; the iterations "
            "are few and alike across clips since the normal equations carry the positive second-order diagonal (no "
            "rejected steps on these clips). The last iterations of a clip converge linearly along its arms' wrist "
            "pitch and elbow, which its matched points barely determine; exact Newton steps there were tried and were "

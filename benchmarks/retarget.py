@@ -1,7 +1,7 @@
 """Retargeting benchmark (``python -m benchmarks retarget``): the shipped walk at several speeds onto the Unitree G1
-(``../shared/data/robots``), jaxanim's whole-clip solve (``robots.solve_retarget`` under ``vmap``) against mink
+(``../shared/data/robots``), jaxanim's whole-clip solve (``retargeting.solve_retarget`` under ``vmap``) against mink
 driven frame by frame as GMR drives it, on the same robot, pairs, targets and clips; both clips judged by the same
-measures (``robots.diagnostics``)."""
+measures (``retargeting.diagnostics``)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxanim import default_clip_path, read_bvh, robots
+from jaxanim import default_clip_path, read_bvh, retargeting, robots
 from jaxanim.app._simulate import _looped_motion
-from jaxanim.robots._retarget_solve import _initial
+from jaxanim.retargeting._solve import _initial
 from jaxanim.skeleton import Motion, resample_at
 
 from .peers import mink_retarget as mr
@@ -23,7 +23,7 @@ from .timing import Runner, status_counts
 
 __all__ = ["ACCELERATOR_SIZES", "RetargetSizes", "clip_problems", "run_retarget"]
 
-_JAX = "jaxanim robots.solve_retarget (vmap)"
+_JAX = "jaxanim retargeting.solve_retarget (vmap)"
 _MINK = "mink 1.3.0 solve_ik per frame (GMR's loop, daqp)"
 #: mink's task costs: ``MINK_COST * sqrt(weight)`` of each pair (a cost scales the residual, not its square), so the
 #: map's ratios at GMR's magnitude (its G1 tables use position costs of 100 on the pelvis and feet).
@@ -57,18 +57,18 @@ def _clips(speeds: tuple[float, ...], frames: int) -> tuple:
     return skel, tuple(out)
 
 
-def clip_problems(robot: robots.Robot, speeds: tuple[float, ...], frames: int) -> list[robots.RetargetProblem]:
+def clip_problems(robot: robots.Robot, speeds: tuple[float, ...], frames: int) -> list[retargeting.RetargetProblem]:
     """One prepared problem per clip (the shipped map; calibrated on the robot's zero pose)."""
     skel, clips = _clips(speeds, frames)
-    mapping = robots.load_mapping(robots.default_mapping_path())
-    return [robots.prepare_retarget(skel, m, robot, mapping) for m in clips]
+    mapping = retargeting.load_mapping(retargeting.default_mapping_path())
+    return [retargeting.prepare_retarget(skel, m, robot, mapping) for m in clips]
 
 
 def _measures(robot, problems, qpos) -> dict[str, np.ndarray]:
-    """Per clip: :func:`robots.summary` of :func:`robots.diagnostics` (float64 kinematics)."""
+    """Per clip: :func:`retargeting.summary` of :func:`retargeting.diagnostics` (float64 kinematics)."""
     out: dict[str, list[float]] = {}
     for p, q in zip(problems, qpos):
-        s = robots.summary(robots.diagnostics(robot, p, jnp.asarray(q, jnp.float64)), p.position_weight)
+        s = retargeting.summary(retargeting.diagnostics(robot, p, jnp.asarray(q, jnp.float64)), p.position_weight)
         for k, v in s.items():
             out.setdefault(k, []).append(v)
     return {k: np.asarray(v, np.float64) for k, v in out.items()}
@@ -95,7 +95,7 @@ def _table(config, sz: RetargetSizes) -> Table:
     speeds = tuple(np.round(np.linspace(*sz.speed_range, max(batches)), 4))
     problems = clip_problems(robot, speeds, sz.frames)
     names = problems[0].names
-    opts = robots.RetargetOptions()
+    opts = retargeting.RetargetOptions()
     table = Table(
         "retarget", f"Retargeting: the shipped walk onto the Unitree G1, {sz.frames}-frame clips",
         accuracy_label="matching error (m)", description=(
@@ -104,13 +104,13 @@ def _table(config, sz: RetargetSizes) -> Table:
             f"the first `b`. The robot: `robots/unitree_g1/g1.xml` of the shared data ({robot.nv} dofs). The map: "
             f"the shipped `walk_humanoid.json` ({len(names)} targets with the root, calibrated on the robot's zero "
             "pose); both solvers get the same robot-frame targets (`RetargetProblem.target_positions`, "
-            "`orientations`) and start from the same first frame. jaxanim: `jax.vmap(robots.solve_retarget)` over "
+            "`orientations`) and start from the same first frame. jaxanim: `jax.vmap(retargeting.solve_retarget)` over "
             "the clips (default `RetargetOptions`: one least-squares problem per clip with planted feet, ground, "
             "hard joint ranges and smoothness; compile apart). mink: GMR's loop "
             "(`benchmarks/peers/mink_retarget.py`), one stage, one `FrameTask` per pair with costs "
             f"{MINK_COST:g}·sqrt(weight) (the map's ratios at GMR's magnitude), daqp, clips one after another "
             "(mink has no batching). **µs / char is per frame.** Every clip of both is judged by "
-            "`robots.diagnostics`: accuracy is the mean distance to the weighted position targets (the planted "
+            "`retargeting.diagnostics`: accuracy is the mean distance to the weighted position targets (the planted "
             "feet's included), averaged over the clips; success is the fraction of clips whose median stance-foot "
             "slide, penetration and range violation meet issue 30's targets; the note gives the worst clip's "
             "slide, the lowest foot point, the mean joint jitter and the largest range violation."),
@@ -141,9 +141,9 @@ def _table(config, sz: RetargetSizes) -> Table:
                        success=_success(m), note=_note(m))
 
     def jax_row(b: int, dtype: str) -> Row:
-        batch = robots.stack_problems(problems[:b])
+        batch = retargeting.stack_problems(problems[:b])
         batch = jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, batch)
-        fn = jax.jit(jax.vmap(lambda p: robots.solve_retarget(robot, p, opts)))
+        fn = jax.jit(jax.vmap(lambda p: retargeting.solve_retarget(robot, p, opts)))
         res, tm, comp = run.jax(fn, batch)
         m = _measures(robot, problems[:b], np.asarray(res.qpos, np.float64))
         measured[(_JAX, dtype, b)] = m
@@ -164,13 +164,13 @@ def _table(config, sz: RetargetSizes) -> Table:
 def _profile(robot, problems, opts) -> str:
     """Where an iteration's time goes (float64, the largest batch): the linearization of every frame (kinematics,
     Jacobians, ``J'J``) and the banded solve, each jitted alone and timed after a warm-up call."""
-    from jaxanim.robots import _retarget_solve as rs
-    from jaxanim.robots._tangent import _Layout
+    from jaxanim.retargeting import _solve as rs
+    from jaxanim.robots._tangent import TangentLayout
 
     import solvers
 
-    lay, dtype = _Layout(robot), jnp.float64
-    batch = robots.stack_problems(problems)
+    lay, dtype = TangentLayout(robot), jnp.float64
+    batch = retargeting.stack_problems(problems)
 
     def linearize(p):
         return rs._linearize(robot, p, lay, rs._initial(robot, p, dtype), rs._frames(p, opts, dtype), opts)

@@ -3,7 +3,8 @@
 Every algorithm is a pure function that solves one instance; batch with ``jax.vmap``.
 
 The subpackages, from the bottom up (each imports only those above it in this list):
-``rotations`` -> ``skeleton`` -> ``kinematics`` -> ``ik``; ``rotations`` -> ``physics`` ->
+``rotations`` -> ``skeleton`` -> ``kinematics`` -> ``robots`` (MJCF / URDF robots) -> ``ik`` and
+``retargeting`` (human motion onto robots); ``rotations`` -> ``physics`` ->
 ``character`` (which also uses ``skeleton`` and ``kinematics``); ``skeleton`` and ``kinematics`` ->
 ``matching`` (motion matching: features, database, search, controller); ``rotations``, ``skeleton``
 and ``kinematics`` -> ``skinning`` (LBS / DQS, skin weights, capsule mesh, OBJ); ``rotations`` and
@@ -22,6 +23,8 @@ from . import (
     kinematics as kinematics,
     matching as matching,
     physics as physics,
+    retargeting as retargeting,
+    robots as robots,
     rotations as rotations,
     skeleton as skeleton,
     skinning as skinning,

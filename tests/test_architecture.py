@@ -176,6 +176,8 @@ def test_layers_run_one_way():
         "jaxanim.skinning": base | {"jaxanim.rotations", "jaxanim.skeleton", "jaxanim.kinematics"},
         "jaxanim.splines": base | {"jaxanim.rotations", "jaxanim.skeleton"},
         "jaxanim.robots": base | {"jaxanim._tree", "jaxanim.rotations", "jaxanim.skeleton", "jaxanim.kinematics"},
+        "jaxanim.retargeting": base | {"jaxanim._tree", "jaxanim.rotations", "jaxanim.skeleton", "jaxanim.kinematics",
+                                       "jaxanim.robots"},
     }
     for unit, allowed in below.items():
         extra = {v for v in graph[unit] if v.startswith("jaxanim")} - allowed
@@ -247,3 +249,22 @@ def test_no_library_file_over_700_lines():
     files = [p for package in ("jaxanim", "solvers", "benchmarks") for p in (REPO / package).rglob("*.py")]
     long = {str(p.relative_to(REPO)): n for p in files if (n := len(p.read_text(encoding="utf-8").splitlines())) > 700}
     assert not long, f"files over 700 lines: {long}"
+
+
+def test_moved_robot_names_warn_and_name_their_new_home():
+    """Retargeting and the robots' IK moved out of ``jaxanim.robots`` (issue 58); the old names still work for
+    one release, each with a DeprecationWarning that names the new home, and are the same objects."""
+    import warnings
+
+    from jaxanim import ik, retargeting, robots
+
+    for name, home in (("retarget", retargeting), ("RetargetOptions", retargeting), ("summary", retargeting),
+                       ("load_mapping", retargeting), ("default_mapping_path", retargeting),
+                       ("solve_ik_robot", ik), ("RobotIKSolution", ik)):
+        with pytest.warns(DeprecationWarning, match=rf"jaxanim\.robots\.{name} has moved to {home.__name__}\.{name}"):
+            assert getattr(robots, name) is getattr(home, name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert robots.load_robot and robots.Robot  # the robot's own names do not warn
+    with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
+        robots.nonsense  # noqa: B018

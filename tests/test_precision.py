@@ -216,7 +216,7 @@ def test_physics_character_and_tracking_state_highest():
 
 def test_robots_state_highest():
     """FK, Jacobians, the centre of mass and IK of an MJCF robot (the G1 of the shared data)."""
-    from jaxanim import robots
+    from jaxanim import retargeting, robots
 
     from .conftest import shared_data_dir
 
@@ -231,12 +231,12 @@ def test_robots_state_highest():
     _assert_highest("ik.solve_ik (robot)", _lower(lambda q: ik.solve_ik(g1, feet, q, regularization=1e-3).qpos, q))
     skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
     clip = jaxanim.Motion(motion.rotations[:4], motion.translations[:4], motion.frame_time)
-    mapping = robots.load_mapping(robots.default_mapping_path())
+    mapping = retargeting.load_mapping(retargeting.default_mapping_path())
     # the stance frames given (every frame): their detection compiled programs of its own, and lowering needs shapes
     contacts = np.ones((clip.num_frames, sum(bool(f) for f in mapping.feet)), bool)
-    problem = robots.prepare_retarget(skel, clip, g1, mapping, contacts=contacts)
-    _assert_highest("robots.solve_retarget", jax.jit(lambda p: robots.solve_retarget(
-        g1, p, robots.RetargetOptions(iterations=1)).qpos).lower(problem))
+    problem = retargeting.prepare_retarget(skel, clip, g1, mapping, contacts=contacts)
+    _assert_highest("retargeting.solve_retarget", jax.jit(lambda p: retargeting.solve_retarget(
+        g1, p, retargeting.RetargetOptions(iterations=1)).qpos).lower(problem))
 
 
 def test_splines_state_highest():

@@ -1,4 +1,4 @@
-"""IK on robots (issue 30, item 1): ``robots.solve_ik_robot`` and ``ik.solve_ik(robot, ...)``.
+"""IK on robots (issue 30, item 1): ``ik.solve_ik_robot`` and ``ik.solve_ik(robot, ...)``.
 
 References (independent of the solver): the targets are the forward kinematics of random in-range
 configurations, so they are reachable, and a solution is checked by forward kinematics (MuJoCo's
@@ -9,7 +9,7 @@ here with MuJoCo's ``mj_kinematics`` and scipy's rotations (finite-difference Ja
 Jacobian of the residual is compared with ``jax.jacfwd`` on a small model with every joint type.
 
 Conventions of the comparison: MuJoCo's quaternions are wxyz, scipy's ``Rotation.from_quat`` takes
-xyzw; converted explicitly in ``_scipy_rotation``. The variables are those of ``jaxanim/robots/_ik.py``:
+xyzw; converted explicitly in ``_scipy_rotation``. The variables are those of ``jaxanim/ik/_robot.py``:
 hinges additive, the free joint's translation additive in the world frame and its rotation
 ``quat_ref ⊗ exp(delta)``, ``delta`` in the body frame (scipy: ``R_ref * Rotation.from_rotvec(delta)``).
 """
@@ -160,9 +160,9 @@ def g1_solves():
     for seed in (1, 2, 4):  # (seed 3 from qpos0 ends in a local minimum on a shoulder bound, scipy's TRF too)
         q_goal = _random_qpos(g1, seed)
         problems.append((_targets_at(g1, q_goal, _G1_TARGETS, mj=_G1), jnp.asarray(_g1_start(q_goal))))
-    sols = [robots.solve_ik_robot(g1, *problems[0])]
+    sols = [ik.solve_ik_robot(g1, *problems[0])]
     with count_traces() as traces:
-        sols += [robots.solve_ik_robot(g1, tg, q) for tg, q in problems[1:]]
+        sols += [ik.solve_ik_robot(g1, tg, q) for tg, q in problems[1:]]
     return g1, problems, sols, traces[0]
 
 
@@ -192,7 +192,7 @@ def test_ik_solve_ik_dispatches_to_the_robot_solve(g1_solves):
     with count_traces() as traces:
         sol = ik.solve_ik(g1, targets, q)
     assert traces[0] == 0, "ik.solve_ik(robot, ...) should reuse the compiled robot solve"
-    assert isinstance(sol, robots.RobotIKSolution)
+    assert isinstance(sol, ik.RobotIKSolution)
     np.testing.assert_array_equal(np.asarray(sol.qpos), np.asarray(sols[1].qpos))
 
 
@@ -200,7 +200,7 @@ def test_vmap_equals_a_loop(g1_solves):
     g1, problems, sols, _ = g1_solves
     targets = jax.tree.map(lambda *x: np.stack(x), *[tg for tg, _ in problems])
     qs = np.stack([q for _, q in problems])
-    batch = jax.device_get(jax.vmap(lambda tg, q: robots.solve_ik_robot(g1, tg, q))(targets, qs))
+    batch = jax.device_get(jax.vmap(lambda tg, q: ik.solve_ik_robot(g1, tg, q))(targets, qs))
     for k, sol in enumerate(sols):
         np.testing.assert_allclose(batch.qpos[k], sol.qpos, atol=1e-12, err_msg=f"qpos of problem {k}")
         assert bool(batch.success[k]) and int(batch.stats["num_steps"][k]) == int(sol.stats["num_steps"])
@@ -269,7 +269,7 @@ def test_minimizer_matches_scipy_trf_with_active_bounds():
     q_goal[g1.jnt_qposadr[knee]] = np.asarray(g1.jnt_range)[knee, 0] - 0.3
     targets = _targets_at(g1, q_goal, _G1_TARGETS, mj=_G1)
     q_ref = _g1_start(q_goal)
-    sol = robots.solve_ik_robot(g1, targets, q_ref, regularization=lam, stop_at_tolerance=False,
+    sol = ik.solve_ik_robot(g1, targets, q_ref, regularization=lam, stop_at_tolerance=False,
                                 solver=solvers.LevenbergMarquardt(rtol=1e-12, atol=1e-14, max_steps=200))
     assert solvers.RESULTS[sol.result] == solvers.RESULTS[solvers.RESULTS.successful]
     residual, to_qpos, bounds = _scipy_problem(_G1, targets, q_ref, lam)
@@ -292,7 +292,7 @@ def test_a_target_beyond_a_hinge_range_puts_it_on_the_bound_and_no_iterate_leave
     residual evaluation (each trial point of the solver) is recorded: from mid-range, all lie inside
     the range and the solution sits on the upper bound; from a start 0.5 rad past the bound, the
     first point is the start clipped onto it."""
-    from jaxanim.robots import _ik
+    from jaxanim.ik import _robot as _ik
 
     g1 = _robot(_G1)
     j = g1.joint_index("left_knee_joint")
@@ -314,7 +314,7 @@ def test_a_target_beyond_a_hinge_range_puts_it_on_the_bound_and_no_iterate_leave
         seen.clear()
         start = np.asarray(g1.qpos0).copy()
         start[a] = start_knee
-        sol = robots.solve_ik_robot(g1, targets, start, frozen=frozen)
+        sol = ik.solve_ik_robot(g1, targets, start, frozen=frozen)
         q = np.asarray(sol.qpos)
         assert solvers.RESULTS[sol.result] == solvers.RESULTS[solvers.RESULTS.successful]
         assert not bool(sol.success), "the target is out of reach: success should be False"
@@ -342,7 +342,7 @@ def test_floating_base_follows_a_rigid_motion_of_the_targets():
                   None if tg.orientation is None else _wxyz(T * _scipy_rotation(tg.orientation)))
         for tg in _targets_at(cmu, q, spec, mj=_CMU)
     )
-    sol = robots.solve_ik_robot(cmu, moved, q)
+    sol = ik.solve_ik_robot(cmu, moved, q)
     assert bool(sol.success), (solvers.RESULTS[sol.result], sol.position_errors, sol.orientation_errors)
     pe, oe = _fk_errors(cmu, sol.qpos, moved, mj=_CMU)
     assert np.all(pe <= 1e-5) and np.all(oe <= 1e-4), (pe, oe)
@@ -360,7 +360,7 @@ def test_urdf_robot_with_a_floating_base_reaches_sole_and_wrist_targets():
     targets = _targets_at(romeo, q_goal, spec)
     start = np.asarray(romeo.qpos0).copy()
     start[:3] = q_goal[:3]
-    sol = robots.solve_ik_robot(romeo, targets, start)
+    sol = ik.solve_ik_robot(romeo, targets, start)
     assert bool(sol.success), (solvers.RESULTS[sol.result], sol.position_errors, sol.orientation_errors)
     pe, oe = _fk_errors(romeo, sol.qpos, targets)
     assert np.all(pe <= 1e-5) and np.all(oe <= 1e-4), (pe, oe)
@@ -372,7 +372,7 @@ def test_float32_solve():
     g1 = _robot(_G1, "float32")
     q_goal = _random_qpos(g1, 1)
     targets = _targets_at(g1, q_goal, _G1_TARGETS, dtype=np.float32, mj=_G1)
-    sol = robots.solve_ik_robot(g1, targets, jnp.asarray(_g1_start(q_goal), jnp.float32),
+    sol = ik.solve_ik_robot(g1, targets, jnp.asarray(_g1_start(q_goal), jnp.float32),
                                 position_tolerance=1e-4, orientation_tolerance=1e-3)
     assert sol.qpos.dtype == jnp.float32 and np.all(np.isfinite(np.asarray(sol.qpos)))
     assert bool(sol.success), (solvers.RESULTS[sol.result], sol.position_errors, sol.orientation_errors)
@@ -402,7 +402,7 @@ def _small():
 
 
 def test_residual_jacobian_is_exact_for_free_ball_slide_and_hinge():
-    from jaxanim.robots import _ik
+    from jaxanim.ik import _robot as _ik
 
     robot, targets = _small()
     rng = np.random.default_rng(0)
@@ -430,7 +430,7 @@ def test_frozen_base_stays_with_joint_weights_on_ball_slide_and_hinge():
     reachable[[11, 12, 13]] = 0.1, 0.7, 0.5  # the slide, the hinge and the knee
     (p, R), = _frames(robot, reachable, ["c"], mj=_SMALL)
     goal = (ik.Target("c", p, _wxyz(Rotation.from_matrix(R))),)
-    sol = robots.solve_ik_robot(robot, goal, robot.qpos0, frozen=("root",), joint_weights=np.arange(1.0, 13.0))
+    sol = ik.solve_ik_robot(robot, goal, robot.qpos0, frozen=("root",), joint_weights=np.arange(1.0, 13.0))
     assert bool(sol.success), (solvers.RESULTS[sol.result], sol.position_errors, sol.orientation_errors)
     q = np.asarray(sol.qpos)
     np.testing.assert_array_equal(q[:7], np.asarray(robot.qpos0)[:7], err_msg="frozen base")
@@ -446,11 +446,11 @@ def test_a_target_outside_a_ball_cone_puts_the_ball_on_the_cone():
     """MuJoCo's ball range (rotation angle <= 0.5 rad): a tip target 1.2 rad away about z is reached as
     far as the cone allows, analytically the 0.5 rad rotation about z; the Jacobian of the projection is
     jacfwd's where the cone is active."""
-    from jaxanim.robots import _ik
+    from jaxanim.ik import _robot as _ik
 
     robot = robots.robot_from_mujoco(_mj(_CONE)[0])
     goal = (ik.Target("tip", 0.5 * np.array([np.cos(1.2), np.sin(1.2), 0.0])),)
-    sol = robots.solve_ik_robot(robot, goal, robot.qpos0, stop_at_tolerance=False)
+    sol = ik.solve_ik_robot(robot, goal, robot.qpos0, stop_at_tolerance=False)
     q = np.asarray(sol.qpos)
     angle = 2 * np.arctan2(np.linalg.norm(q[1:]), abs(q[0]))  # MuJoCo's ball angle
     assert abs(angle - 0.5) <= 1e-9
@@ -475,9 +475,9 @@ def test_bad_input_names_the_argument():
     g1, cmu = _robot(_G1), _robot(_CMU)
     target = ik.Target("left_foot", [0.0, 0.0, 0.0])
     with pytest.raises(JaxanimError, match=r"targets\[1\]: unknown body or site 'left_hand'; valid names: .*'pelvis'.*'left_foot'"):
-        robots.solve_ik_robot(g1, (target, ik.Target("left_hand", [0.0, 0.0, 0.0])), g1.qpos0)
+        ik.solve_ik_robot(g1, (target, ik.Target("left_hand", [0.0, 0.0, 0.0])), g1.qpos0)
     with pytest.raises(JaxanimError, match=r"qpos: expected shape \(nq,\) = \(36,\), got \(35,\)"):
-        robots.solve_ik_robot(g1, target, g1.qpos0[:35])
+        ik.solve_ik_robot(g1, target, g1.qpos0[:35])
     with pytest.raises(JaxanimError, match=r"pin: only for a skeleton"):
         ik.solve_ik(g1, target, g1.qpos0, pin="pelvis")
     with pytest.raises(JaxanimError, match=r"limits: only for a skeleton"):
@@ -487,14 +487,14 @@ def test_bad_input_names_the_argument():
     with pytest.raises(JaxanimError, match=r"joint_weights: expected shape \(nv,\) = \(35,\), got \(36,\)"):
         ik.solve_ik(g1, target, g1.qpos0, joint_weights=jnp.ones(36))
     with pytest.raises(JaxanimError, match=r"reference: expected shape \(nq,\) = \(36,\)"):
-        robots.solve_ik_robot(g1, target, g1.qpos0, reference=g1.qpos0[:7])
+        ik.solve_ik_robot(g1, target, g1.qpos0, reference=g1.qpos0[:7])
     with pytest.raises(JaxanimError, match=r"frozen: unknown joint 'knee'; valid joint names: \['floating_base_joint'"):
-        robots.solve_ik_robot(g1, target, g1.qpos0, frozen=("knee",))
+        ik.solve_ik_robot(g1, target, g1.qpos0, frozen=("knee",))
     with pytest.raises(JaxanimError, match=r"frozen: every joint is frozen"):
-        robots.solve_ik_robot(g1, target, g1.qpos0, frozen=g1.jnt_names)
+        ik.solve_ik_robot(g1, target, g1.qpos0, frozen=g1.jnt_names)
     with pytest.raises(JaxanimError, match=r"'root' is both a body and a site; write 'body:root' or 'site:root'"):
-        robots.solve_ik_robot(cmu, ik.Target("root", [0.0, 0.0, 1.0]), cmu.qpos0)
+        ik.solve_ik_robot(cmu, ik.Target("root", [0.0, 0.0, 1.0]), cmu.qpos0)
     with pytest.raises(JaxanimError, match=r"targets\['left_foot'\].position: expected shape \(3,\), got \(2, 3\)"):
-        robots.solve_ik_robot(g1, ik.Target("left_foot", jnp.zeros((2, 3))), g1.qpos0)
+        ik.solve_ik_robot(g1, ik.Target("left_foot", jnp.zeros((2, 3))), g1.qpos0)
     with pytest.raises(JaxanimError, match=r"targets: expected a non-empty sequence of jaxanim.ik.Target"):
-        robots.solve_ik_robot(g1, (), g1.qpos0)
+        ik.solve_ik_robot(g1, (), g1.qpos0)

@@ -1,4 +1,4 @@
-"""The retargeting map (jaxanim.robots.load_mapping / calibrate), issue 30: the JSON contract, its
+"""The retargeting map (jaxanim.retargeting.load_mapping / calibrate), issue 30: the JSON contract, its
 errors, and the calibration against MuJoCo's own zero-pose kinematics and a NumPy rest pose."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import jaxanim
-from jaxanim import robots
+from jaxanim import retargeting, robots
 
 from .conftest import shared_data_dir
 
@@ -54,7 +54,7 @@ def _rest_positions(skel):
 
 def test_calibration_matches_mujoco_and_the_rest_pose(setup):
     skel, g1, path = setup
-    cal = robots.calibrate(robots.load_mapping(WALK_TO_G1), skel, g1)
+    cal = retargeting.calibrate(retargeting.load_mapping(WALK_TO_G1), skel, g1)
     model, data = _mujoco_zero_pose(path)
     body = lambda n: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
     robot_height = data.xpos[body("pelvis"), 2] - min(data.xpos[body(f"{s}_ankle_roll_link"), 2]
@@ -79,11 +79,11 @@ def test_given_offsets_and_scale_are_kept_and_the_file_form_parses(setup, tmp_pa
     data["pairs"][2]["offset"] = [0.0, 1.0, 0.0, 0.0]
     path = tmp_path / "map.json"
     path.write_text(json.dumps(data), encoding="utf-8")
-    m = robots.load_mapping(path)
+    m = retargeting.load_mapping(path)
     assert m.feet == (True, True, False, False, False) and m.targets[4] == "site:imu_in_torso"
     np.testing.assert_array_equal(np.asarray(m.position_weight), [1, 1, 0.5, 0.5, 1])
     np.testing.assert_array_equal(np.asarray(m.orientation_weight), [0.1, 0.1, 0.1, 0.1, 0.0])
-    cal = robots.calibrate(m, skel, g1)
+    cal = retargeting.calibrate(m, skel, g1)
     assert float(cal.scale) == 0.5
     np.testing.assert_array_equal(np.asarray(cal.offset[2]), [0.0, 1.0, 0.0, 0.0])
 
@@ -113,28 +113,28 @@ def _with(**changes):
 ])
 def test_bad_maps_name_the_key(data, match):
     with pytest.raises(jaxanim.JaxanimError, match=match):
-        robots.load_mapping(data)
+        retargeting.load_mapping(data)
 
 
 def test_names_and_feet_are_checked_against_the_skeleton_and_the_robot(setup, tmp_path):
     skel, g1, _ = setup
     with pytest.raises(jaxanim.JaxanimError, match=r"pairs\[0\].source: unknown source joint 'LeftPaw'; the "
                                                     r"skeleton's joints are \['Hips', 'Spine'"):
-        robots.calibrate(robots.load_mapping(_with(pair0_source="LeftPaw")), skel, g1)
+        retargeting.calibrate(retargeting.load_mapping(_with(pair0_source="LeftPaw")), skel, g1)
     with pytest.raises(jaxanim.JaxanimError, match=r"pairs\[0\].target: unknown body or site 'left_hoof'; valid "
                                                     r"names: \['world', 'pelvis'"):
-        robots.calibrate(robots.load_mapping(_with(pair0_target="left_hoof")), skel, g1)
+        retargeting.calibrate(retargeting.load_mapping(_with(pair0_target="left_hoof")), skel, g1)
     with pytest.raises(jaxanim.JaxanimError, match=r"root.source: unknown source joint 'Pelvis'"):
-        robots.calibrate(robots.load_mapping(_with(root={"source": "Pelvis", "target": "pelvis"})), skel, g1)
+        retargeting.calibrate(retargeting.load_mapping(_with(root={"source": "Pelvis", "target": "pelvis"})), skel, g1)
     hand_as_foot = _with()
     hand_as_foot["pairs"][2]["foot"] = True
     with pytest.raises(jaxanim.JaxanimError, match=r"pairs\[2\] is a foot, but in the source rest pose it is not "
                                                     r"below the root"):
-        robots.calibrate(robots.load_mapping(hand_as_foot), skel, g1)
+        retargeting.calibrate(retargeting.load_mapping(hand_as_foot), skel, g1)
     bad = tmp_path / "bad.json"
     bad.write_text("{\"root\": ", encoding="utf-8")
     with pytest.raises(jaxanim.JaxanimError, match=r"bad.json: not valid JSON"):
-        robots.load_mapping(bad)
+        retargeting.load_mapping(bad)
 
 
 def test_the_shipped_humanoid_and_map():
@@ -156,7 +156,7 @@ def test_the_shipped_humanoid_and_map():
                                                                         g1_model.nbody)
     assert (model.nq, model.nv) == (36, 35)
     skel, _ = jaxanim.read_bvh(jaxanim.default_clip_path())
-    m = robots.load_mapping(robots.default_mapping_path())
+    m = retargeting.load_mapping(retargeting.default_mapping_path())
     for robot in (robots.load_robot(path), robots.load_robot(g1_path)):
-        cal = robots.calibrate(m, skel, robot)
+        cal = retargeting.calibrate(m, skel, robot)
         assert 0.5 < float(cal.scale) < 1.0 and np.all(np.isfinite(np.asarray(cal.offset)))

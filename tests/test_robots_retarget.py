@@ -12,7 +12,7 @@ import pytest
 
 import jaxanim
 import solvers
-from jaxanim import robots
+from jaxanim import retargeting, robots
 
 from .conftest import shared_data_dir
 
@@ -96,7 +96,7 @@ def test_a_retargeting_step_with_ground_rows_against_its_dense_model():
     """The Levenberg-Marquardt step with the ground rows of the foot points the last step took below the ground
     (``_step``): its solution is the dense solve of the damped normal equations with those rows added, and its
     predicted decrease is the model's own, whose ground term is one-sided (the points' depth below the ground)."""
-    from jaxanim.robots._retarget_solve import _step
+    from jaxanim.retargeting._solve import _step
 
     rng = np.random.default_rng(3)
     T, n, P = 6, 4, 3
@@ -147,7 +147,7 @@ def test_the_stopping_test_wants_a_small_predicted_decrease_too():
     """A step accepted for a round-off gain that its model had overrated (gain ratio near 0) does not end the
     solve (it once stopped a float32 clip of the benchmark with a foot 4 mm in the ground); a step whose actual
     and predicted decreases are both small does, and so does one that moves nothing."""
-    from jaxanim.robots._retarget_solve import _converged
+    from jaxanim.retargeting._solve import _converged
 
     converged = jax.jit(_converged)  # one program for the five calls (eagerly: ten)
 
@@ -198,7 +198,7 @@ def _check_clip(res, path, feet, penetration=PENETRATION):
     assert bool(res.success), res.result
     qpos = np.asarray(res.qpos)
     model = mujoco.MjModel.from_xml_path(str(path))
-    summary = robots.summary(res.diagnostics)
+    summary = retargeting.summary(res.diagnostics)
     d = res.diagnostics
     for f, name in enumerate(feet):
         body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
@@ -227,7 +227,7 @@ def _check_clip(res, path, feet, penetration=PENETRATION):
 def walk():
     skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
     robot = robots.load_robot(robots.default_robot_path())
-    return skel, motion, robot, robots.retarget(skel, motion, robot, robots.default_mapping_path())
+    return skel, motion, robot, retargeting.retarget(skel, motion, robot, retargeting.default_mapping_path())
 
 
 def test_walk_onto_the_shipped_humanoid_plants_its_feet(walk):
@@ -244,7 +244,7 @@ def test_padded_clips_equal_the_clip_alone(tiny):
     frames, share the program of that solve: one compile fewer than clips of three lengths). The longest is the
     whole walk, whose source kinematics and contact detection the ``walk`` fixture compiled (a clip of its own
     length compiled two programs more, about 1.5 s)."""
-    from jaxanim.robots._retarget_solve import RETARGET_LANES
+    from jaxanim.retargeting._solve import RETARGET_LANES
 
     skel, motion, robot, mapping, options = tiny
     short = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
@@ -252,9 +252,9 @@ def test_padded_clips_equal_the_clip_alone(tiny):
     middle = jaxanim.Motion(motion.rotations[2:14], motion.translations[2:14], motion.frame_time)
     clips = [long, short, middle]
     assert len(clips) > RETARGET_LANES and len(clips) % RETARGET_LANES
-    batch = robots.retarget_clips(skel, clips, robot, mapping, options=options)
+    batch = retargeting.retarget_clips(skel, clips, robot, mapping, options=options)
     for i, clip in ((1, short), (2, middle)):
-        alone = robots.solve_retarget(robot, robots.prepare_retarget(skel, clip, robot, mapping), options)
+        alone = retargeting.solve_retarget(robot, retargeting.prepare_retarget(skel, clip, robot, mapping), options)
         assert batch[i].qpos.shape == alone.qpos.shape == (clip.num_frames, robot.nq)
         np.testing.assert_allclose(np.asarray(batch[i].qpos), np.asarray(alone.qpos), atol=1e-8)
         np.testing.assert_allclose(np.asarray(batch[i].diagnostics.position_error),
@@ -265,7 +265,7 @@ def test_cmu_clip_onto_the_g1():
     path = shared_data_dir() / "robots" / "unitree_g1" / "g1.xml"
     skel, motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")
     robot = robots.load_robot(path)
-    res = robots.retarget(skel, motion, robot, CMU_TO_G1)
+    res = retargeting.retarget(skel, motion, robot, CMU_TO_G1)
     summary = _check_clip(res, path, ("left_ankle_roll_link", "right_ankle_roll_link"))
     assert summary["matching_error"] < 0.06
 
@@ -305,9 +305,9 @@ def test_cmu_clip_onto_the_cmu_humanoid():
     path = shared_data_dir() / "robots" / "cmu_humanoid" / "humanoid_CMU.xml"
     skel, motion = jaxanim.read_bvh(shared_data_dir() / "bvh" / "cmu_01_01_trim300.bvh")
     robot = robots.load_robot(path)
-    cal = robots.calibrate(robots.load_mapping(CMU_TO_CMU), skel, robot)
+    cal = retargeting.calibrate(retargeting.load_mapping(CMU_TO_CMU), skel, robot)
     np.testing.assert_allclose(np.asarray(cal.axes)[:, 2], [0.0, -1.0, 0.0], atol=1e-2)  # the source's +Z (facing): -Y
-    res = robots.retarget(skel, motion, robot, CMU_TO_CMU)
+    res = retargeting.retarget(skel, motion, robot, CMU_TO_CMU)
     summary = _check_clip(res, path, ("lfoot", "rfoot"))
     assert summary["matching_error"] < 0.06
     model = mujoco.MjModel.from_xml_path(str(path))
@@ -348,18 +348,18 @@ def tiny():
                          {"source": "RightFoot", "target": "rfoot", "foot": True},
                          {"source": "LeftUpLeg", "target": "lthigh", "orientation_weight": 0.0},
                          {"source": "RightUpLeg", "target": "rthigh", "orientation_weight": 0.0}]}
-    return skel, motion, robot, mapping, robots.RetargetOptions(iterations=3)
+    return skel, motion, robot, mapping, retargeting.RetargetOptions(iterations=3)
 
 
 def test_gradient_of_the_solve_against_finite_differences(tiny):
     skel, motion, robot, mapping, options = tiny
     clip = jaxanim.Motion(motion.rotations[:12], motion.translations[:12], motion.frame_time)
-    problem = robots.prepare_retarget(skel, clip, robot, mapping)
+    problem = retargeting.prepare_retarget(skel, clip, robot, mapping)
 
     def loss(scale, weights, problem=problem, robot=robot):
-        p = robots.RetargetProblem(**{**{f: getattr(problem, f) for f in problem.__dataclass_fields__},
+        p = retargeting.RetargetProblem(**{**{f: getattr(problem, f) for f in problem.__dataclass_fields__},
                                       "scale": scale, "position_weight": weights})
-        q = robots.solve_retarget(robot, p, options).qpos
+        q = retargeting.solve_retarget(robot, p, options).qpos
         return jnp.sum(q[:, 2]) + jnp.sum(jnp.sin(q[:, 7:]))  # root height, the four hinges
 
     s0, w0 = problem.scale, problem.position_weight
@@ -384,25 +384,25 @@ def test_bad_input_is_named(walk):
     skel, motion, robot, _ = walk
     nan = jaxanim.Motion(motion.rotations.at[5, 2, 0].set(jnp.nan), motion.translations, motion.frame_time)
     with pytest.raises(jaxanim.JaxanimError, match=r"motion: .*NaN.* \[5\]"):
-        robots.prepare_retarget(skel, nan, robot, robots.default_mapping_path())
+        retargeting.prepare_retarget(skel, nan, robot, retargeting.default_mapping_path())
     bad = {"root": {"source": "Hips", "target": "pelvis"},
            "pairs": [{"source": "LeftFoot", "target": "left_foot_link", "foot": True}]}
     with pytest.raises(jaxanim.JaxanimError, match=r"left_foot_link.*left_ankle_roll_link"):
-        robots.prepare_retarget(skel, motion, robot, bad)
+        retargeting.prepare_retarget(skel, motion, robot, bad)
     fixed = robots.load_robot(shared_data_dir() / "robots" / "romeo" / "romeo_small.urdf")
     romeo = {"root": {"source": "Hips", "target": "body"},
              "pairs": [{"source": "LeftFoot", "target": "l_ankle", "foot": True}]}
     with pytest.raises(jaxanim.JaxanimError, match="floating_base=True"):
-        robots.prepare_retarget(skel, motion, fixed, romeo)
+        retargeting.prepare_retarget(skel, motion, fixed, romeo)
     with pytest.raises(jaxanim.JaxanimError, match="options.plant_weight"):
-        robots.retarget(skel, motion, robot, robots.default_mapping_path(),
-                        options=robots.RetargetOptions(plant_weight=-1.0))
+        retargeting.retarget(skel, motion, robot, retargeting.default_mapping_path(),
+                        options=retargeting.RetargetOptions(plant_weight=-1.0))
     # an orientation weight set after preparing, on a target the map had left without one: refused, not ignored
-    problem = robots.prepare_retarget(skel, motion, robot, robots.default_mapping_path())
+    problem = retargeting.prepare_retarget(skel, motion, robot, retargeting.default_mapping_path())
     off = next(k for k in range(len(problem.names)) if k not in problem.oriented)
     later = eqx.tree_at(lambda p: p.orientation_weight, problem, problem.orientation_weight.at[off].set(0.3))
     with pytest.raises(jaxanim.JaxanimError, match=rf"problem.orientation_weight: .*{problem.names[off]}"):
-        robots.solve_retarget(robot, later)
+        retargeting.solve_retarget(robot, later)
 
 
 def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):

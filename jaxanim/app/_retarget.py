@@ -17,7 +17,7 @@ _LONG = 300
 
 
 def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
-    from .. import robots  # noqa: PLC0415 (mujoco is an optional extra)
+    from .. import retargeting, robots  # noqa: PLC0415 (mujoco is an optional extra)
     from ..skeleton import read_bvh  # noqa: PLC0415
     from ..kinematics import forward_kinematics  # noqa: PLC0415
 
@@ -28,7 +28,7 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
         raise JaxanimError(f"--render {args.render}: expected a .gif or .mp4 file")
     dtype = "float32" if args.float32 else "float64"
     robot_path = args.robot or robots.default_robot_path()
-    map_path = args.map or robots.default_mapping_path()
+    map_path = args.map or retargeting.default_mapping_path()
     source = args.source
     if source is None:
         from ..skeleton import default_clip_path  # noqa: PLC0415
@@ -40,18 +40,18 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     if unbounded:
         ui.warning(f"{len(unbounded)} joint(s) without a range, treated as unbounded: {unbounded}")
     start = time.perf_counter()
-    problem = robots.prepare_retarget(skeleton, motion, robot, map_path)
+    problem = retargeting.prepare_retarget(skeleton, motion, robot, map_path)
     T = motion.num_frames
     if T >= _LONG:
         ui.progress(f"{source}: {T} frames prepared (contacts, anchors) in {_duration(time.perf_counter() - start)}; "
                     f"solving the whole clip (compiling first)")
-    options = robots.RetargetOptions(iterations=args.iterations)
-    res = robots.solve_retarget(robot, problem, options)
+    options = retargeting.RetargetOptions(iterations=args.iterations)
+    res = retargeting.solve_retarget(robot, problem, options)
     qpos = np.asarray(jax.block_until_ready(res.qpos))
     seconds = time.perf_counter() - start
     if not np.all(np.isfinite(qpos)):
         raise JaxanimError(f"the solve gave non-finite values ({res.result}); nothing written")
-    s = robots.summary(res.diagnostics, position_weight=problem.position_weight)
+    s = retargeting.summary(res.diagnostics, position_weight=problem.position_weight)
     fk = jax.vmap(lambda q: robots.forward_kinematics(robot, q).xpos)(res.qpos)
     src = jax.vmap(lambda r, t: forward_kinematics(skeleton, r, t).positions)(motion.rotations, motion.translations)
     d = res.diagnostics
@@ -86,7 +86,7 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
 
 def add_retarget_parser(sub, common) -> None:
     p = sub.add_parser("retarget", parents=[common], help="retarget a BVH clip onto a robot (MJCF or URDF), feet planted",
-                       description="Retarget a BVH clip onto a robot (jaxanim.robots.retarget, needs jaxanim[robots]): "
+                       description="Retarget a BVH clip onto a robot (jaxanim.retargeting.retarget, needs jaxanim[robots]): "
                                    "one least-squares problem over the whole clip, joint ranges as hard bounds, the "
                                    "feet planted in the source's stance phases. Writes qpos [T, nq], fps, joint and "
                                    "body names and the per-frame diagnostics to OUT.npz, and prints the foot slide, "

@@ -1,5 +1,6 @@
 """Inverse kinematics: targets, Gauss-Newton / Levenberg-Marquardt solves with joint limits
-(:func:`solve_ik`, :func:`solve_ik_clip`), the CCD baseline, the JSON target format, and the
+(:func:`solve_ik`, :func:`solve_ik_clip`) on skeletons and on robots (:func:`solve_ik_robot`, also
+reached through ``solve_ik(robot, ...)``), the CCD baseline, the JSON target format, and the
 foot-contact cleanup built on them (:func:`clean_foot_contacts`).
 """
 
@@ -12,6 +13,7 @@ from ._solve import (
     solve_ik_clip as solve_ik_clip,
     targets_from_json as targets_from_json,
 )
+from ._robot import RobotIKSolution as RobotIKSolution, solve_ik_robot as solve_ik_robot
 from ._ccd import (
     solve_ik_ccd as solve_ik_ccd,
 )

@@ -31,7 +31,7 @@ from .._types import Array, Float
 from ..kinematics._fk import site_transforms_sequential
 from ..kinematics._limits import EulerLimit as EulerLimit, SwingTwistLimit as SwingTwistLimit
 from ..kinematics._limits import bone_axis, limit_violation as limit_violation
-from ..robots._ik import solve_ik_robot, target_errors
+from ._robot import solve_ik_robot, target_errors
 from ..robots._robot import Robot
 from ..skeleton._skeleton import Motion, Skeleton
 from ._problem import _layout as _layout, _pose, _residual, _residual_and_jacobian as _residual_and_jacobian
@@ -250,9 +250,9 @@ def solve_ik(
     with new targets or a new start pose does not recompile.
 
     Robots. ``solve_ik(robot, targets, qpos, ...)`` with a :class:`jaxanim.robots.Robot` is
-    :func:`jaxanim.robots.solve_ik_robot`: targets name robot bodies or sites, ``qpos [nq]`` is the
+    :func:`jaxanim.ik.solve_ik_robot`: targets name robot bodies or sites, ``qpos [nq]`` is the
     start, limited hinges and slides are hard bounds, a free joint is a floating base, and the
-    result is a :class:`jaxanim.robots.RobotIKSolution` (``qpos`` and the status fields of
+    result is a :class:`jaxanim.ik.RobotIKSolution` (``qpos`` and the status fields of
     :class:`IKSolution`). It takes ``reference`` (a ``qpos``), ``frozen`` (joint names),
     ``regularization``, ``joint_weights`` (``[nv]``), ``solver``, the tolerances,
     ``stop_at_tolerance`` and ``throw``; ``translations``, ``options``, ``pin``,
@@ -302,7 +302,7 @@ def solve_ik(
         throw: raise on failure instead of reporting it in ``result`` (use ``False`` under vmap).
 
     Returns:
-        :class:`IKSolution` (a :class:`jaxanim.robots.RobotIKSolution` for a robot).
+        :class:`IKSolution` (a :class:`jaxanim.ik.RobotIKSolution` for a robot).
 
     Raises:
         JaxanimError: a wrong shape, an unknown joint / End Site, a bad option value, or nothing
@@ -314,7 +314,7 @@ def solve_ik(
         position_tolerance=position_tolerance, orientation_tolerance=orientation_tolerance,
         stop_at_tolerance=stop_at_tolerance, throw=throw,
     )
-    if isinstance(skeleton, Robot):  # robots.solve_ik_robot, with the keywords that apply to a robot
+    if isinstance(skeleton, Robot):  # ik.solve_ik_robot, with the keywords that apply to a robot
         for name, value in (("translations", translations), ("options", options)) + tuple(
                 (k, keywords[k]) for k in _SKELETON_ONLY):
             if value is not None and value is not _UNSET:

@@ -2,7 +2,7 @@
 
 Computed on the host (NumPy) from one batched forward kinematics of the clip: the runs of contact
 frames are data-dependent, and a clip is prepared once. :func:`jaxanim.ik.clean_foot_contacts`
-plants the feet of those frames; :func:`jaxanim.robots.retarget` plants the robot's.
+plants the feet of those frames; :func:`jaxanim.retargeting.retarget` plants the robot's.
 """
 
 from __future__ import annotations

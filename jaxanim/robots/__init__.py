@@ -1,10 +1,16 @@
 """Robots as kinematic trees: MJCF / URDF loading (through MuJoCo), forward kinematics, geometric
-Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding, and
-inverse kinematics (:func:`solve_ik_robot`, also reached through ``jaxanim.ik.solve_ik(robot, ...)``),
-and retargeting of human motion onto robots (:func:`retarget`: one problem per clip, planted feet).
+Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding.
+
+Inverse kinematics on robots is :func:`jaxanim.ik.solve_ik_robot`, and retargeting human motion onto
+them is :mod:`jaxanim.retargeting`. Their old names here (``robots.retarget``,
+``robots.solve_ik_robot``, ...) still work for one release and emit a ``DeprecationWarning`` that
+names the new home.
 
 Loading needs the optional extra: ``pip install 'jaxanim[robots]'``.
 """
+
+import importlib as _importlib
+import warnings as _warnings
 
 from ._kinematics import (
     RobotFK as RobotFK,
@@ -12,28 +18,34 @@ from ._kinematics import (
     forward_kinematics as forward_kinematics,
     jacobian as jacobian,
 )
-from ._data import default_mapping_path as default_mapping_path, default_robot_path as default_robot_path
-from ._ik import (
-    RobotIKSolution as RobotIKSolution,
-    solve_ik_robot as solve_ik_robot,
-)
+from ._data import default_robot_path as default_robot_path
 from ._load import (
     RobotLoadError as RobotLoadError,
     load_robot as load_robot,
     robot_from_mujoco as robot_from_mujoco,
 )
-from ._mapping import (
-    Calibration as Calibration,
-    RetargetMap as RetargetMap,
-    calibrate as calibrate,
-    load_mapping as load_mapping,
-)
-from ._retarget import retarget as retarget, retarget_clips as retarget_clips
-from ._retarget_diagnostics import RetargetDiagnostics as RetargetDiagnostics, diagnostics as diagnostics, summary as summary
-from ._retarget_problem import (
-    RetargetProblem as RetargetProblem,
-    prepare_retarget as prepare_retarget,
-    stack_problems as stack_problems,
-)
-from ._retarget_solve import RetargetOptions as RetargetOptions, RetargetResult as RetargetResult, solve_retarget as solve_retarget
 from ._robot import Robot as Robot
+
+#: The names that moved out of this package, and their new home (deprecated here for one release).
+_MOVED = {
+    **{name: "jaxanim.retargeting" for name in (
+        "Calibration", "RetargetMap", "calibrate", "load_mapping", "default_mapping_path", "RetargetProblem",
+        "prepare_retarget", "stack_problems", "RetargetOptions", "RetargetResult", "solve_retarget",
+        "RetargetDiagnostics", "diagnostics", "summary", "retarget", "retarget_clips")},
+    "RobotIKSolution": "jaxanim.ik",
+    "solve_ik_robot": "jaxanim.ik",
+}
+
+
+def __getattr__(name: str):
+    home = _MOVED.get(name)
+    if home is None:
+        raise AttributeError(f"module 'jaxanim.robots' has no attribute {name!r}")
+    _warnings.warn(f"jaxanim.robots.{name} has moved to {home}.{name}; the old name goes in the next release",
+                   DeprecationWarning, stacklevel=2)
+    # by name, at the first use: the new homes sit above this package and import it
+    return getattr(_importlib.import_module(home), name)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_MOVED))

@@ -20,5 +20,6 @@ def default_robot_path() -> pathlib.Path:
 
 
 def default_mapping_path() -> pathlib.Path:
-    """The map of the shipped walk onto the shipped humanoid (``jaxanim/data/walk_humanoid.json``)."""
+    """The map of the shipped walk onto the shipped humanoid (``jaxanim/data/walk_humanoid.json``);
+    :func:`jaxanim.retargeting.default_mapping_path` is its public home."""
     return _DATA / "walk_humanoid.json"

@@ -119,7 +119,7 @@ def _plan_cached(parents, types, bodies, qposadr, nq) -> _Plan:
     return _Plan(parents, types, bodies, qposadr, nq)
 
 
-def _plan(robot: Robot) -> _Plan:
+def kinematic_plan(robot: Robot) -> _Plan:
     return _plan_cached(robot.body_parents, robot.jnt_types, robot.jnt_bodies, robot.jnt_qposadr, robot.nq)
 
 
@@ -157,13 +157,13 @@ def _walk(parents: tuple[int, ...], R_loc, t_loc):
     for row, par in zip(levels[1:], par_local):
         R_par, t_par = _take(R_prev, par), _take(t_prev, par)
         t_prev = t_par + _mv(R_par, _take(t_loc, row))
-        R_prev = _mm(R_par, _take(R_loc, row))
+        R_prev = mm(R_par, _take(R_loc, row))
         Rs.append(R_prev)
         ts.append(t_prev)
     return _take(jnp.concatenate(Rs, axis=0), inverse), _take(jnp.concatenate(ts, axis=0), inverse)
 
 
-def _check(robot, qpos):
+def check_qpos(robot, qpos):
     if not isinstance(robot, Robot):
         raise JaxanimError(f"robot: expected a jaxanim.robots.Robot, got {type(robot).__name__}")
     check_shape("qpos", qpos, (robot.nq,), what=f"(nq,) = ({robot.nq},)")
@@ -173,7 +173,7 @@ def _check(robot, qpos):
     return qpos.astype(dtype), dtype
 
 
-def _mm(A, B):
+def mm(A, B):
     """``A @ B`` over the last two axes of 3 x 3 blocks, written elementwise: XLA:CPU runs a batch of
     tiny dots slowly, and nested ``vmap`` s of them have met an XLA layout bug (a dot's batch
     dimensions out of order)."""
@@ -181,7 +181,7 @@ def _mm(A, B):
 
 
 def _mv(A, v):
-    """``A @ v`` for 3 x 3 blocks and 3-vectors, elementwise (see :func:`_mm`)."""
+    """``A @ v`` for 3 x 3 blocks and 3-vectors, elementwise (see :func:`mm`)."""
     return sum(A[..., :, c] * v[..., None, c] for c in range(3))
 
 
@@ -204,9 +204,9 @@ def _joint_transforms(plan: _Plan, robot: Robot, qpos, dtype):
     return R, t, anchor
 
 
-def _kinematics(robot: Robot, qpos, dtype):
+def world_frames(robot: Robot, qpos, dtype):
     """World frames of the bodies and, for each joint, of its body just after the joint."""
-    plan = _plan(robot)
+    plan = kinematic_plan(robot)
     B, J = robot.num_bodies, plan.J
     R_body = rot.quat_to_matrix(robot.body_quat.astype(dtype))
     t_body = robot.body_pos.astype(dtype)
@@ -219,7 +219,7 @@ def _kinematics(robot: Robot, qpos, dtype):
         R_after, t_after = [], []
         for slot in plan.slots:
             t_loc = t_loc + _mv(R_loc, _take(t_pad, slot))
-            R_loc = _mm(R_loc, _take(R_pad, slot))
+            R_loc = mm(R_loc, _take(R_pad, slot))
             R_after.append(R_loc)
             t_after.append(t_loc)
     R_world, p_world = _walk(plan.parents_fk, R_loc, t_loc)
@@ -231,7 +231,7 @@ def _kinematics(robot: Robot, qpos, dtype):
     t_a = _take(jnp.concatenate(t_after, axis=0), plan.after)
     R_par = _take(R_world, plan.jnt_parent)
     p_par = _take(p_world, plan.jnt_parent)
-    R_jw = _mm(R_par, R_a)
+    R_jw = mm(R_par, R_a)
     p_jw = p_par + _mv(R_par, t_a)
     xanchor = p_jw + _mv(R_jw, anchor)
     xaxis = _mv(R_jw, robot.jnt_axis.astype(dtype))
@@ -247,13 +247,13 @@ def _at_bodies(R_world, p_world, bodies, pos, dtype):
 
 @eqx.filter_jit
 def _fk(robot: Robot, qpos, dtype) -> RobotFK:
-    R_world, p_world, _, _ = _kinematics(robot, qpos, dtype)
+    R_world, p_world, _, _ = world_frames(robot, qpos, dtype)
     xipos = _at_bodies(R_world, p_world, list(range(robot.num_bodies)), robot.body_ipos, dtype)
     sites = list(robot.site_bodies)
     site_xpos = _at_bodies(R_world, p_world, sites, robot.site_pos, dtype)
     if sites:
         R_site = rot.quat_to_matrix(robot.site_quat.astype(dtype))
-        site_xmat = _mm(_take(R_world, sites), R_site)
+        site_xmat = mm(_take(R_world, sites), R_site)
     else:
         site_xmat = jnp.zeros((0, 3, 3), dtype)
     return RobotFK(p_world, R_world, rot.matrix_to_quat(R_world), xipos, site_xpos, site_xmat)
@@ -277,11 +277,11 @@ def forward_kinematics(robot: Robot, qpos: Float[Array, " nq"]) -> RobotFK:
     Raises:
         JaxanimError: if ``qpos`` does not have shape ``(nq,)``.
     """
-    qpos, dtype = _check(robot, qpos)
+    qpos, dtype = check_qpos(robot, qpos)
     return _fk(robot, qpos, dtype)
 
 
-def _targets(robot: Robot, names) -> tuple[tuple[int, ...], tuple[int, ...]]:
+def target_rows(robot: Robot, names) -> tuple[tuple[int, ...], tuple[int, ...]]:
     """``(body of each target, row of each target's point in [xpos (bodies); site_xpos (sites)])``."""
     if isinstance(names, str):
         names = (names,)
@@ -320,19 +320,19 @@ def _points(robot: Robot, R_world, p_world, rows, dtype):
     return _take(jnp.concatenate([p_world, site_xpos], axis=0), rows)
 
 
-def _target_frames(robot: Robot, R_world, p_world, bodies, rows, dtype):
+def target_frames(robot: Robot, R_world, p_world, bodies, rows, dtype):
     """World points ``[K, 3]`` and frames ``[K, 3, 3]`` of targets (a body's ``xmat``, a site's
-    ``site_xmat``), ``bodies`` and ``rows`` as :func:`_targets` gives them."""
+    ``site_xmat``), ``bodies`` and ``rows`` as :func:`target_rows` gives them."""
     points = _points(robot, R_world, p_world, rows, dtype)
     R = _take(R_world, bodies)
     sites = [r - robot.num_bodies for r in rows]
     if any(s >= 0 for s in sites):
         R_site = rot.quat_to_matrix(_take(robot.site_quat.astype(dtype), [max(s, 0) for s in sites]))
-        R = jnp.where(np.asarray([s >= 0 for s in sites])[:, None, None], _mm(R, R_site), R)
+        R = jnp.where(np.asarray([s >= 0 for s in sites])[:, None, None], mm(R, R_site), R)
     return points, R
 
 
-def _surface(robot: Robot, R_world, p_world, points, dtype):
+def surface_points(robot: Robot, R_world, p_world, points, dtype):
     """World positions ``[P, 3]`` of the surface points ``points`` (indices into ``robot.point_pos``)
     and the height above ``z = 0`` of the surface around each (``z - point_radius``)."""
     bodies = [robot.point_bodies[i] for i in points]
@@ -340,11 +340,11 @@ def _surface(robot: Robot, R_world, p_world, points, dtype):
     return world, world[:, 2] - _take(robot.point_radius.astype(dtype), points)
 
 
-def _dof_columns(robot: Robot, kin, points, bodies, dofs, dtype):
+def dof_columns(robot: Robot, kin, points, bodies, dofs, dtype):
     """``(jacp, jacr)`` ``[K, n, 3]``: MuJoCo's Jacobian columns of the dofs ``dofs`` at the target
     ``points`` on ``bodies`` (zero where a dof does not move the target's body); ``kin`` is
-    :func:`_kinematics`'s output."""
-    plan = _plan(robot)
+    :func:`world_frames`'s output."""
+    plan = kinematic_plan(robot)
     R_world, _, xanchor, xaxis = kin
     dofs = np.asarray(dofs, dtype=np.int64)
     columns = jnp.swapaxes(R_world, 1, 2).reshape(3 * robot.num_bodies, 3)  # row 3 b + c: column c of xmat_b
@@ -366,9 +366,9 @@ def _jac(robot: Robot, qpos, dtype, bodies: tuple[int, ...], rows: tuple[int, ..
     if K == 0 or nv == 0:
         z = jnp.zeros((K, 3, nv), dtype)
         return z, z
-    kin = _kinematics(robot, qpos, dtype)
+    kin = world_frames(robot, qpos, dtype)
     points = _points(robot, kin[0], kin[1], rows, dtype)
-    jacp, jacr = _dof_columns(robot, kin, points, bodies, range(nv), dtype)
+    jacp, jacr = dof_columns(robot, kin, points, bodies, range(nv), dtype)
     return jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)
 
 
@@ -396,14 +396,14 @@ def jacobian(
     Raises:
         JaxanimError: a wrong ``qpos`` shape, or an unknown or ambiguous name (listing the valid ones).
     """
-    qpos, dtype = _check(robot, qpos)
-    bodies, rows = _targets(robot, names)
+    qpos, dtype = check_qpos(robot, qpos)
+    bodies, rows = target_rows(robot, names)
     return _jac(robot, qpos, dtype, bodies, rows)
 
 
 @eqx.filter_jit
 def _com(robot: Robot, qpos, dtype, members: tuple[int, ...]):
-    R_world, p_world, _, _ = _kinematics(robot, qpos, dtype)
+    R_world, p_world, _, _ = world_frames(robot, qpos, dtype)
     xipos = _at_bodies(R_world, p_world, list(members), _take(robot.body_ipos, members), dtype)
     mass = _take(robot.body_mass.astype(dtype), members)
     total = jnp.sum(mass)
@@ -430,7 +430,7 @@ def center_of_mass(robot: Robot, qpos: Float[Array, " nq"], *, body: str | None 
         JaxanimError: a wrong ``qpos`` shape or an unknown body.
         EquinoxRuntimeError: if the bodies have no mass.
     """
-    qpos, dtype = _check(robot, qpos)
+    qpos, dtype = check_qpos(robot, qpos)
     root = 0 if body is None else robot.body_index(body)
     below = _tree.subtree(robot.body_parents)
     members = tuple(int(k) for k in np.flatnonzero(below[root]))

@@ -7,11 +7,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import rotations as rot
-from ._kinematics import _mm
+from ._kinematics import mm
 from ._robot import Robot
 
 
-class _Layout:
+class TangentLayout:
     """Static index sets of a robot (dofs of hinges/slides, of free translations, rotation blocks)."""
 
     def __init__(self, robot: Robot):
@@ -42,7 +42,7 @@ class _Layout:
         self.cone_joints = np.asarray([j for _, j in balls], int)
 
 
-def _retract(lay: _Layout, rng, q, delta, cones=None):
+def retract(lay: TangentLayout, rng, q, delta, cones=None):
     """``q ⊕ delta``, hinges and slides clipped into ``rng`` ``[scalars, 2]`` and limited balls brought
     back onto their cones (``cones``: ``jnt_range[:, 1]`` of ``lay.cone_joints``)."""
     if lay.scalar_dofs.size:
@@ -51,12 +51,12 @@ def _retract(lay: _Layout, rng, q, delta, cones=None):
         qi = lay.rot_q[:, None] + np.arange(4)
         quat = rot.quat_normalize(rot.quat_multiply(q[qi], rot.rotvec_to_quat(delta[lay.rot_dofs])))
         if lay.cone_blocks.size and cones is not None:
-            quat = quat.at[lay.cone_blocks].set(_cone(quat[lay.cone_blocks], cones)[0])
+            quat = quat.at[lay.cone_blocks].set(cone_projection(quat[lay.cone_blocks], cones)[0])
         q = q.at[qi].set(quat)
     return q
 
 
-def _difference(lay: _Layout, qa, qb):
+def tangent_difference(lay: TangentLayout, qa, qb):
     """``qb ⊖ qa`` ``[nv]``: additive coordinates' difference, rotations' local rotation vector."""
     v = jnp.zeros(qa.shape[:-1] + (lay.nv,), qa.dtype)
     if lay.scalar_dofs.size:
@@ -67,7 +67,7 @@ def _difference(lay: _Layout, qa, qb):
     return v
 
 
-def _free_joint(robot: Robot, body: int) -> int | None:
+def free_joint_of(robot: Robot, body: int) -> int | None:
     """The free joint that moves ``body``: on it or on its nearest ancestor that has one (``None``: none)."""
     while body > 0:
         for j, (t, b) in enumerate(zip(robot.jnt_types, robot.jnt_bodies)):
@@ -77,7 +77,7 @@ def _free_joint(robot: Robot, body: int) -> int | None:
     return None
 
 
-def _cone(quat, angle):
+def cone_projection(quat, angle):
     """MuJoCo's ball range: a rotation of more than ``angle`` (rad, from the identity) is brought back to
     ``angle`` about the same axis. Returns ``(quat, P)``, ``P [.., 3, 3]`` the map from the local angular
     velocity before to after: ``J_r(v') s (I - u u') J_r(v)^{-1}`` with ``v`` the rotation vector,
@@ -92,6 +92,6 @@ def _cone(quat, angle):
     eye = jnp.broadcast_to(jnp.eye(3, dtype=v.dtype), v.shape[:-1] + (3, 3))
     radial = eye - u[..., :, None] * u[..., None, :]
     Jr_inv = jnp.swapaxes(rot.left_jacobian_inverse(v), -1, -2)  # J_r(v)^{-1} = J_l(v)^{-T}
-    P = _mm(rot.right_jacobian(v2), _mm(scale[..., None, None] * radial, Jr_inv))
+    P = mm(rot.right_jacobian(v2), mm(scale[..., None, None] * radial, Jr_inv))
     P = jnp.where(out[..., None, None], P, eye)
     return jnp.where(out[..., None], rot.rotvec_to_quat(v2), quat), P

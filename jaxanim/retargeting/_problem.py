@@ -25,10 +25,10 @@ from .._types import Array, Bool, Float
 from ..kinematics._contacts import true_runs, detect_foot_contacts
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
-from ._kinematics import _targets
+from ..robots._kinematics import target_rows
 from ._mapping import Calibration, RetargetMap, _canonical_quat, _standing_feet, calibrate, load_mapping
-from ._robot import Robot
-from ._tangent import _free_joint
+from ..robots._robot import Robot
+from ..robots._tangent import free_joint_of
 
 __all__ = ["RetargetProblem", "prepare_retarget", "stack_problems"]
 
@@ -142,7 +142,7 @@ def _with_root(mapping: RetargetMap) -> RetargetMap:
 
 
 def _check_robot(robot: Robot, root_body: int) -> None:
-    if _free_joint(robot, root_body) is None:
+    if free_joint_of(robot, root_body) is None:
         raise JaxanimError(
             f"robot: the root target {robot.body_names[root_body]!r} is not moved by a free joint, so the robot "
             "cannot follow the clip through the world; load it with load_robot(path, floating_base=True)")
@@ -181,7 +181,7 @@ def prepare_retarget(
     motion.check_finite("motion")
     T = motion.num_frames
     full = _with_root(mapping)
-    bodies, rows = _targets(robot, full.targets)
+    bodies, rows = target_rows(robot, full.targets)
     _check_robot(robot, bodies[0])
     calib = calibrate(full, skeleton, robot) if calibration is None else calibration
     offsets = np.asarray(calib.offset, np.float64)

@@ -36,7 +36,7 @@ static solver settings, whether there is a regularizer) keys one ``eqx.filter_ji
 targets, start and reference configurations, weights and tolerances are arrays and do not
 retrace.
 
-This module does not import :mod:`jaxanim.ik` (the robots unit sits below it): a target is any
+The robot's kinematics and its tangent layout come from :mod:`jaxanim.robots`. A target is any
 object with ``site`` (a name), ``position`` (``[3]`` or ``None``), ``orientation`` (``[4]`` wxyz or
 ``None``) and ``weight`` (scalar), which :class:`jaxanim.ik.Target` is.
 """
@@ -56,9 +56,9 @@ from .._errors import JaxanimError, check_float, check_shape
 from .._linalg import own_kernel
 from .._types import Array, Float
 from ..rotations._matrices import angle_between_matrices
-from ._kinematics import _check, _dof_columns, _kinematics, _mm, _plan, _target_frames, _targets
-from ._robot import Robot
-from ._tangent import _cone
+from ..robots._kinematics import check_qpos, dof_columns, world_frames, mm, kinematic_plan, target_frames, target_rows
+from ..robots._robot import Robot
+from ..robots._tangent import cone_projection
 
 #: The default ``position_tolerance``: 10 micrometres (robots are in metres).
 _POSITION_TOLERANCE = 1e-5
@@ -90,7 +90,7 @@ class RobotIKSolution(eqx.Module):
 # --- static layout --------------------------------------------------------------------------------
 
 
-class _Layout(eqx.Module):
+class TangentLayout(eqx.Module):
     """Which dofs are variables, how each maps to qpos, and where each target sits (all static)."""
 
     var_dofs: tuple[int, ...] = eqx.field(static=True)  # the dof of each variable
@@ -128,7 +128,7 @@ def _is_target(t) -> bool:
     return all(hasattr(t, a) for a in ("site", "position", "orientation", "weight")) and isinstance(t.site, str)
 
 
-def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
+def _layout(robot: Robot, targets: tuple, frozen) -> TangentLayout:
     frozen = (frozen,) if isinstance(frozen, str) else tuple(frozen)
     frozen_joints = set()
     for name in frozen:
@@ -161,12 +161,12 @@ def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
     bodies, rows = [], []
     for i, t in enumerate(targets):
         try:
-            (b,), (r,) = _targets(robot, (t.site,))
+            (b,), (r,) = target_rows(robot, (t.site,))
         except JaxanimError as e:
             raise JaxanimError(f"targets[{i}]: {str(e).removeprefix('names: ')}") from None
         bodies += [b]
         rows += [r]
-    return _Layout(
+    return TangentLayout(
         tuple(var_dofs), tuple(scalar_vars), tuple(scalar_qadr), tuple(scalar_joints), tuple(rot_vars),
         tuple(rot_qadr), tuple(cones), bounded, tuple(bodies), tuple(rows),
         tuple(t.position is not None for t in targets), tuple(t.orientation is not None for t in targets),
@@ -180,7 +180,7 @@ class _Data(eqx.Module):
     """Everything :func:`_residual` and :func:`_stop` need besides ``y``."""
 
     robot: Robot
-    layout: _Layout
+    layout: TangentLayout
     targets: tuple
     q_ref: Array  # [nq], unit quaternions
     reg_w: Array | None  # [n] lambda w_d, None: no regularizer rows
@@ -191,7 +191,7 @@ class _Data(eqx.Module):
 def _qpos(y, data: _Data):
     """``(qpos [nq], J_rot [blocks, 3, 3])`` of the variables ``y``: limited coordinates clipped into their
     range (which only removes rounding: the solver keeps ``y`` in the box), and a limited ball turned back
-    onto its cone where ``quat_ref ⊗ exp(delta)`` leaves it (:func:`_cone`). ``J_rot`` maps ``d delta`` to
+    onto its cone where ``quat_ref ⊗ exp(delta)`` leaves it (:func:`cone_projection`). ``J_rot`` maps ``d delta`` to
     each rotation block's local angular velocity: ``J_r(delta)``, times the cone's projection."""
     lay, q = data.layout, data.q_ref
     if lay.scalar_vars:
@@ -207,25 +207,25 @@ def _qpos(y, data: _Data):
         if limited:
             ib = np.asarray(limited)
             cone = data.robot.jnt_range.astype(y.dtype)[np.asarray([lay.cones[b] for b in limited]), 1]
-            clamped, P = _cone(quat[ib], cone)
+            clamped, P = cone_projection(quat[ib], cone)
             quat = quat.at[ib].set(clamped)
-            J_rot = J_rot.at[ib].set(_mm(P, J_rot[ib]))
+            J_rot = J_rot.at[ib].set(mm(P, J_rot[ib]))
         q = q.at[qi].set(quat)
     return q, J_rot
 
 
-def _frames(robot: Robot, lay: _Layout, qpos, dtype):
+def _frames(robot: Robot, lay: TangentLayout, qpos, dtype):
     """Target points ``[K, 3]``, target frames ``[K, 3, 3]`` (body: ``xmat``; site: ``site_xmat``) and
     the kinematics they came from."""
-    kin = _kinematics(robot, qpos, dtype)
-    points, R = _target_frames(robot, kin[0], kin[1], lay.bodies, lay.rows, dtype)
+    kin = world_frames(robot, qpos, dtype)
+    points, R = target_frames(robot, kin[0], kin[1], lay.bodies, lay.rows, dtype)
     return points, R, kin
 
 
-def _jacobian(robot: Robot, lay: _Layout, kin, points, J_rot, dtype):
+def _jacobian(robot: Robot, lay: TangentLayout, kin, points, J_rot, dtype):
     """``(jacp, jacr)`` ``[K, 3, n]``: the geometric Jacobian columns of the variables' dofs
     (:func:`~jaxanim.robots.jacobian`'s), rotation blocks times ``J_rot`` (:func:`_qpos`)."""
-    jacp, jacr = _dof_columns(robot, kin, points, lay.bodies, lay.var_dofs, dtype)
+    jacp, jacr = dof_columns(robot, kin, points, lay.bodies, lay.var_dofs, dtype)
     if lay.rot_vars:  # column d of a rotation block <- sum_c column c J_rot[c, d]
         cols = np.asarray(lay.rot_vars)  # [nb, 3]
         Jr = J_rot  # [nb, 3, 3]
@@ -254,7 +254,7 @@ def _errors_and_rows(lay, targets, points, R, jacp, jacr, dtype):
     if ori:
         io = np.asarray(ori)
         R_goal = rot.quat_to_matrix(jnp.stack([jnp.asarray(targets[i].orientation, dtype) for i in ori]))
-        e = rot.matrix_to_rotvec(_mm(R[io], jnp.swapaxes(R_goal, -1, -2)))  # world frame
+        e = rot.matrix_to_rotvec(mm(R[io], jnp.swapaxes(R_goal, -1, -2)))  # world frame
         e = own_kernel(e)  # computed once, not inside each entry of its left Jacobian below
         res.append(sqrt_w[io, None] * e)
         Li = rot.left_jacobian_inverse(e)
@@ -318,7 +318,7 @@ def target_errors(targets, points, R, dtype):
 
 
 def _normalize_quats(robot: Robot, q):
-    plan = _plan(robot)
+    plan = kinematic_plan(robot)
     idx = [plan.q_quat[j] for j in range(robot.num_joints) if plan.ball[j] or plan.free[j]]
     if not idx:
         return q
@@ -431,7 +431,7 @@ def solve_ik_robot(
             unknown or ambiguous body / site / joint name (listing the valid ones), or nothing left to
             move; raised in Python before anything is computed.
     """
-    qpos, _ = _check(robot, qpos)  # in the robot's and qpos's dtypes promoted together
+    qpos, _ = check_qpos(robot, qpos)  # in the robot's and qpos's dtypes promoted together
     targets = _check_targets(robot, targets)
     layout = _layout(robot, targets, frozen)
     if reference is not None:

@@ -2,7 +2,7 @@ r"""The retargeting solve: one least-squares problem over the whole clip, O(T) p
 
 Variables: the robot's ``qpos`` at every frame, stepped in its tangent space (``nv`` numbers per frame:
 hinges and slides additive, a free joint's translation additive in the world, rotations
-``quat ⊗ exp(delta)`` with ``delta`` local, as in :func:`~jaxanim.robots.solve_ik_robot`).
+``quat ⊗ exp(delta)`` with ``delta`` local, as in :func:`~jaxanim.ik.solve_ik_robot`).
 
 Cost (``s`` the scale, ``v_t = (q_{t+1} ⊖ q_t) / dt``, ``a_t = (v_t - v_{t-1}) / dt``)::
 
@@ -52,11 +52,11 @@ from .. import rotations as rot
 from .._errors import JaxanimError
 from .._linalg import einsum, jit
 from .._types import Array, Float
-from ._kinematics import _dof_columns, _kinematics, _mm, _surface, _target_frames
-from ._retarget_diagnostics import RetargetDiagnostics, diagnostics
-from ._tangent import _difference, _free_joint, _Layout, _retract
-from ._retarget_problem import RetargetProblem
-from ._robot import Robot
+from ..robots._kinematics import dof_columns, world_frames, mm, surface_points, target_frames
+from ._diagnostics import RetargetDiagnostics, diagnostics
+from ..robots._tangent import tangent_difference, free_joint_of, TangentLayout, retract
+from ._problem import RetargetProblem
+from ..robots._robot import Robot
 
 __all__ = ["RetargetOptions", "RetargetResult", "solve_retarget"]
 
@@ -94,7 +94,7 @@ class RetargetOptions(eqx.Module):
 
 
 class RetargetResult(eqx.Module):
-    """The robot's clip (:func:`solve_retarget`, :func:`~jaxanim.robots.retarget`).
+    """The robot's clip (:func:`solve_retarget`, :func:`~jaxanim.retargeting.retarget`).
 
     Attributes:
         qpos: ``[T, nq]`` the robot's configurations (MuJoCo's order; padding frames repeat the last).
@@ -104,7 +104,7 @@ class RetargetResult(eqx.Module):
         success: converged and every value finite.
         cost: the final cost.
         num_steps: iterations run.
-        diagnostics: :class:`~jaxanim.robots.RetargetDiagnostics`, per frame.
+        diagnostics: :class:`~jaxanim.retargeting.RetargetDiagnostics`, per frame.
     """
 
     qpos: Float[Array, "T nq"]
@@ -154,7 +154,7 @@ class _Frame(eqx.Module):
     w_posture: Array  # []
 
 
-def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame):
+def _frame_residual(robot: Robot, prob: RetargetProblem, lay: TangentLayout, q, fr: _Frame):
     """``(r [m], J [m, nv], posture, ground, curvature [nv])`` of one frame: the posture term's rows are the
     identity on the joints' dofs (``w_posture`` times ``posture``), added by :func:`_frame_normal` without forming
     them. ``ground`` is every foot point's weighted height and height row ``(sqrt(w) h [P], sqrt(w) dh/dq [P, nv])``
@@ -164,12 +164,12 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
     Orientation rows are those of ``prob.oriented`` only: a target whose orientation weight was 0 when the problem
     was prepared has none (on the G1's walk map 6 of 10 targets, 18 of the 80 rows)."""
     dtype = q.dtype
-    kin = _kinematics(robot, q, dtype)
+    kin = world_frames(robot, q, dtype)
     bodies, oriented = prob.bodies, np.asarray(prob.oriented, np.int64)
-    points, R = _target_frames(robot, kin[0], kin[1], bodies, prob.rows, dtype)
+    points, R = target_frames(robot, kin[0], kin[1], bodies, prob.rows, dtype)
     pts_idx = [i for f in prob.foot_points for i in f]
-    surface, height = _surface(robot, kin[0], kin[1], pts_idx, dtype)
-    e_ori = rot.matrix_to_rotvec(_mm(R[oriented], jnp.swapaxes(fr.R, -1, -2)))
+    surface, height = surface_points(robot, kin[0], kin[1], pts_idx, dtype)
+    e_ori = rot.matrix_to_rotvec(mm(R[oriented], jnp.swapaxes(fr.R, -1, -2)))
     sp, so = _sqrt(fr.wp)[:, None], _sqrt(fr.wo)[:, None]
     owner = np.asarray([f for f, idx in enumerate(prob.foot_points) for _ in idx])
     sg = _sqrt(fr.w_ground)[owner]
@@ -177,8 +177,8 @@ def _frame_residual(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _F
     posture = q[lay.joint_q] - robot.qpos0.astype(dtype)[lay.joint_q]
     r = jnp.concatenate([(sp * (points - fr.p)).ravel(), (so * e_ori).ravel(), sg * ground])
     dofs = np.arange(robot.nv)
-    jacp, jacr = _dof_columns(robot, kin, points, bodies, dofs, dtype)  # [K, nv, 3]
-    jsp, jsr = _dof_columns(robot, kin, surface, [robot.point_bodies[i] for i in pts_idx], dofs, dtype)  # [P, nv, 3]
+    jacp, jacr = dof_columns(robot, kin, points, bodies, dofs, dtype)  # [K, nv, 3]
+    jsp, jsr = dof_columns(robot, kin, surface, [robot.point_bodies[i] for i in pts_idx], dofs, dtype)  # [P, nv, 3]
     # the second-order term's diagonal over the position rows: a rotation dof turns a point about its axis,
     # d2p/dq^2 = axis x (axis x (p - anchor)) = axis x column (zero for slides and for dofs that do not move it)
     curvature = (einsum("kc,kdc->d", sp**2 * (points - fr.p), jnp.cross(jacr, jacp))
@@ -213,7 +213,7 @@ def _frames(prob: RetargetProblem, opts: RetargetOptions, dtype) -> _Frame:
         w_posture=mask * opts.posture_weight.astype(dtype))
 
 
-def _frame_normal(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Frame):
+def _frame_normal(robot: Robot, prob: RetargetProblem, lay: TangentLayout, q, fr: _Frame):
     """``(cost, J'J [nv, nv], J'r [nv], ground)`` of one frame's terms (``ground``: :func:`_frame_residual`'s;
     ``J'J`` with the posture term and the second-order diagonal ``curvature`` added)."""
     r, J, posture, ground, curvature = _frame_residual(robot, prob, lay, q, fr)
@@ -226,14 +226,14 @@ def _frame_normal(robot: Robot, prob: RetargetProblem, lay: _Layout, q, fr: _Fra
 # --- the smoothness terms and the banded system ------------------------------------------------------------
 
 
-def _pair_terms(lay: _Layout, q, prob: RetargetProblem, opts: RetargetOptions):
+def _pair_terms(lay: TangentLayout, q, prob: RetargetProblem, opts: RetargetOptions):
     """Velocity and velocity-limit terms (each pair ``t, t+1``: weight ``c [T-1, nv]``, offset ``o``:
     cost ``1/2 c (o + delta_{t+1} - delta_t)^2``) and acceleration terms (``a [T-2, nv]``, offset
     ``acc``, on ``delta_{t+2} - 2 delta_{t+1} + delta_t``), and their cost."""
     dtype = q.dtype
     fps = 1.0 / prob.frame_time.astype(dtype)
     valid = prob.mask.astype(dtype)
-    dq = _difference(lay, q[:-1], q[1:])  # [T-1, nv] per frame
+    dq = tangent_difference(lay, q[:-1], q[1:])  # [T-1, nv] per frame
     pair = (valid[:-1] * valid[1:])[:, None]
     c_v = pair * opts.velocity_weight.astype(dtype) * fps**2
     vmax = opts.max_joint_velocity.astype(dtype) / fps
@@ -284,7 +284,7 @@ def _linearize(robot, prob, lay, q, frames, opts):
     return jnp.sum(local) + smooth, JtJ, Jtr, (c, o, a, acc), ground
 
 
-def _free(lay: _Layout, rng, q, g, last, dtype):
+def _free(lay: TangentLayout, rng, q, g, last, dtype):
     """``[T, nv]`` 1 for a coordinate that may move, 0 for one at a bound that its gradient pushes out,
     or that the last step computed at ``q`` (``last``; rejected, it is tried again) pushed out: the
     projection onto the range would have cut that step short of the model's, so the next one is
@@ -305,7 +305,7 @@ def _free(lay: _Layout, rng, q, g, last, dtype):
 def _initial(robot: Robot, prob: RetargetProblem, dtype):
     """Every frame at ``qpos0`` with the root's free joint on the root target."""
     q = jnp.broadcast_to(robot.qpos0.astype(dtype), (prob.num_frames, robot.nq))
-    a = robot.jnt_qposadr[_free_joint(robot, prob.bodies[0])]
+    a = robot.jnt_qposadr[free_joint_of(robot, prob.bodies[0])]
     p = prob.target_positions().astype(dtype)[:, 0]
     return q.at[:, a:a + 3].set(p).at[:, a + 3:a + 7].set(prob.orientations.astype(dtype)[:, 0])
 
@@ -389,7 +389,7 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
         free = _free(lay, rng, q, g, last, dtype)
         delta, ok, predicted, touched = _step(JtJ, g, c, a, free, mu, ground, touching)
         delta = jnp.where(ok & ~first, delta, 0.0)
-        q_new = jax.vmap(lambda qt, dt: _retract(lay, rng, qt, dt, cones))(q, delta)
+        q_new = jax.vmap(lambda qt, dt: retract(lay, rng, qt, dt, cones))(q, delta)
         q_new = jnp.where(first, q, q_new)  # the first trip linearizes q0 itself
         lin_new = _linearize(robot, prob, lay, q_new, frames, opts)
         # Nielsen's damping update from the gain ratio: actual over the linear model's predicted decrease
@@ -419,11 +419,11 @@ def _iterate(robot, prob, lay, rng, q0, frames, opts, dtype):
 @jit
 def _solve(robot: Robot, prob: RetargetProblem, opts: RetargetOptions):
     dtype = prob.positions.dtype
-    lay = _Layout(robot)
+    lay = TangentLayout(robot)
     rng = robot.jnt_range.astype(dtype)[lay.scalar_joints] if lay.scalar_dofs.size else jnp.zeros((0, 2), dtype)
     frames = _frames(prob, opts, dtype)
     cones = robot.jnt_range.astype(dtype)[lay.cone_joints, 1]
-    q = jax.vmap(lambda q: _retract(lay, rng, q, jnp.zeros(robot.nv, dtype), cones))(_initial(robot, prob, dtype))
+    q = jax.vmap(lambda q: retract(lay, rng, q, jnp.zeros(robot.nv, dtype), cones))(_initial(robot, prob, dtype))
 
     def iterate(q, prob):
         return _iterate(robot, prob, lay, rng, q, frames, opts, dtype)
@@ -450,8 +450,8 @@ def _check_oriented(problem: RetargetProblem) -> None:
 
 
 def solve_retarget(robot: Robot, problem: RetargetProblem, options: RetargetOptions | None = None) -> RetargetResult:
-    """Solve one prepared clip (:func:`~jaxanim.robots.prepare_retarget`); batch clips with ``jax.vmap``
-    over :func:`~jaxanim.robots.stack_problems` (``in_axes=(None, 0, None)``). Jit-compiled once per
+    """Solve one prepared clip (:func:`~jaxanim.retargeting.prepare_retarget`); batch clips with ``jax.vmap``
+    over :func:`~jaxanim.retargeting.stack_problems` (``in_axes=(None, 0, None)``). Jit-compiled once per
     robot, map and clip length; differentiable with respect to the problem's weights and scale and the
     options' weights.
     """

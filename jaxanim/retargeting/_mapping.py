@@ -42,8 +42,8 @@ from .._errors import JaxanimError
 from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Skeleton
-from ._kinematics import _kinematics, _surface, _target_frames, _targets, forward_kinematics
-from ._robot import Robot
+from ..robots._kinematics import world_frames, surface_points, target_frames, target_rows, forward_kinematics
+from ..robots._robot import Robot
 
 __all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping"]
 
@@ -195,7 +195,7 @@ def _source_index(skeleton: Skeleton, where: str, name: str) -> int:
 
 def _target_row(robot: Robot, where: str, name: str) -> int:
     try:
-        return _targets(robot, (name,))[1][0]
+        return target_rows(robot, (name,))[1][0]
     except JaxanimError as exc:
         message = str(exc)
         raise JaxanimError(f"mapping: {where}: {message.removeprefix('names: ')}") from None
@@ -220,9 +220,9 @@ def _zero_pose_feet(robot: Robot, bodies: tuple[int, ...], rows: tuple[int, ...]
     """The zero pose's frames of the foot targets and each foot's surface points and their heights, in one
     compiled program (op by op, with a compile per operation, they took seconds)."""
     dtype = robot.qpos0.dtype
-    R_world, p_world, *_ = _kinematics(robot, robot.qpos0, dtype)
-    frames = _target_frames(robot, R_world, p_world, list(bodies), list(rows), dtype)
-    return frames, tuple(_surface(robot, R_world, p_world, idx, dtype) for idx in points)
+    R_world, p_world, *_ = world_frames(robot, robot.qpos0, dtype)
+    frames = target_frames(robot, R_world, p_world, list(bodies), list(rows), dtype)
+    return frames, tuple(surface_points(robot, R_world, p_world, idx, dtype) for idx in points)
 
 
 _rest_fk = eqx.filter_jit(skeleton_fk)
@@ -280,7 +280,7 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
             foot pair that is not below the root in either pose.
     """
     if not isinstance(mapping, RetargetMap):
-        raise JaxanimError(f"mapping: expected a RetargetMap (robots.load_mapping), got {type(mapping).__name__}")
+        raise JaxanimError(f"mapping: expected a RetargetMap (retargeting.load_mapping), got {type(mapping).__name__}")
     src = [_source_index(skeleton, f"pairs[{i}].source", n) for i, n in enumerate(mapping.sources)]
     src_root = _source_index(skeleton, "root.source", mapping.root_source)
     tgt = [_target_row(robot, f"pairs[{i}].target", n) for i, n in enumerate(mapping.targets)]
@@ -305,7 +305,7 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
     given = np.asarray(mapping.offset, np.float64)
     feet = [i for i, foot in enumerate(mapping.feet) if foot]
     R_pair = R_rob[tgt]
-    R_pair[feet] = _standing_feet(robot, _targets(robot, [mapping.targets[i] for i in feet])[0], [tgt[i] for i in feet])[1]
+    R_pair[feet] = _standing_feet(robot, target_rows(robot, [mapping.targets[i] for i in feet])[0], [tgt[i] for i in feet])[1]
     M = np.swapaxes(R_src[src], -1, -2) @ R_pair  # each pair's offset, computed in one call
     computed = np.asarray(_canonical_quat(jnp.asarray(M)), np.float64)
     offsets = [given[i] if mapping.given_offsets[i] else computed[i] for i in range(mapping.num_pairs)]

@@ -11,9 +11,9 @@ import numpy as np
 from .._errors import JaxanimError
 from ..skeleton._skeleton import Motion, Skeleton
 from ._mapping import Calibration, RetargetMap, load_mapping
-from ._retarget_problem import prepare_retarget, stack_problems
-from ._retarget_solve import RetargetOptions, RetargetResult, solve_retarget
-from ._robot import Robot
+from ._problem import prepare_retarget, stack_problems
+from ._solve import RetargetOptions, RetargetResult, solve_retarget
+from ..robots._robot import Robot
 
 __all__ = ["retarget", "retarget_clips"]
 

@@ -11,10 +11,10 @@ import numpy as np
 
 from .. import rotations as rot
 from .._types import Array, Bool, Float
-from ._kinematics import _kinematics, _mm, _surface, _target_frames
-from ._retarget_problem import RetargetProblem
-from ._robot import Robot
-from ._tangent import _difference, _Layout
+from ..robots._kinematics import world_frames, mm, surface_points, target_frames
+from ._problem import RetargetProblem
+from ..robots._robot import Robot
+from ..robots._tangent import tangent_difference, TangentLayout
 
 __all__ = ["RetargetDiagnostics", "diagnostics", "summary"]
 
@@ -58,11 +58,11 @@ class RetargetDiagnostics(eqx.Module):
 
 def _frame_measures(robot: Robot, prob: RetargetProblem, q, p_target, R_target):
     dtype = q.dtype
-    R_world, p_world, *_ = _kinematics(robot, q, dtype)
-    points, R = _target_frames(robot, R_world, p_world, prob.bodies, prob.rows, dtype)
+    R_world, p_world, *_ = world_frames(robot, q, dtype)
+    points, R = target_frames(robot, R_world, p_world, prob.bodies, prob.rows, dtype)
     pos_err = jnp.linalg.norm(points - p_target, axis=-1)
-    ori_err = jnp.linalg.norm(rot.matrix_to_rotvec(_mm(R, jnp.swapaxes(R_target, -1, -2))), axis=-1)
-    lowest = jnp.stack([jnp.min(_surface(robot, R_world, p_world, idx, dtype)[1]) for idx in prob.foot_points])
+    ori_err = jnp.linalg.norm(rot.matrix_to_rotvec(mm(R, jnp.swapaxes(R_target, -1, -2))), axis=-1)
+    lowest = jnp.stack([jnp.min(surface_points(robot, R_world, p_world, idx, dtype)[1]) for idx in prob.foot_points])
     return pos_err, ori_err, points[np.asarray(prob.feet)], lowest
 
 
@@ -80,7 +80,7 @@ def diagnostics(robot: Robot, problem: RetargetProblem, qpos: Float[Array, "T nq
     down = contacts[:-1] & contacts[1:]
     speed = jnp.linalg.norm(feet[1:, :, :2] - feet[:-1, :, :2], axis=-1) * fps
     slide = jnp.concatenate([jnp.where(down, speed, 0.0), jnp.zeros((1, len(prob.feet)), dtype)])
-    lay = _Layout(robot)
+    lay = TangentLayout(robot)
     lim = lay.scalar_joints[lay.bounded] if lay.scalar_dofs.size else np.zeros(0, int)
     if lim.size:
         x = qpos[:, lay.scalar_q[lay.bounded]]
@@ -96,7 +96,7 @@ def diagnostics(robot: Robot, problem: RetargetProblem, qpos: Float[Array, "T nq
         over = jnp.max(jnp.maximum(angle - robot.jnt_range.astype(dtype)[lay.cone_joints, 1][None], 0.0), axis=1)
         violation = jnp.maximum(violation, over)
     valid_pair = (mask[:-1] & mask[1:])[:, None]
-    v = jnp.where(valid_pair, _difference(lay, qpos[:-1], qpos[1:]) * fps, 0.0)[:, lay.joint_dofs]
+    v = jnp.where(valid_pair, tangent_difference(lay, qpos[:-1], qpos[1:]) * fps, 0.0)[:, lay.joint_dofs]
     joint_speed = jnp.concatenate([jnp.max(jnp.abs(v), axis=1, initial=0.0), jnp.zeros(1, dtype)])
     acc = jnp.where(valid_pair[1:] & valid_pair[:-1], (v[1:] - v[:-1]) * fps, 0.0)
     jitter = jnp.concatenate([jnp.zeros(1, dtype), jnp.mean(jnp.abs(acc), axis=1) if lay.joint_dofs.size

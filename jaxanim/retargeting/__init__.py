@@ -1,0 +1,24 @@
+"""Retargeting human motion onto robots: the map and its calibration, the whole-clip problem
+(:func:`prepare_retarget`), its solve (:func:`solve_retarget`: one least-squares problem per clip,
+feet planted, joint ranges as hard bounds), batches of clips (:func:`retarget_clips`) and the
+diagnostics (:func:`diagnostics`, :func:`summary`).
+
+The robot itself (loading, kinematics, the tangent layout) is :mod:`jaxanim.robots`; loading needs
+the optional extra: ``pip install 'jaxanim[robots]'``.
+"""
+
+from ..robots._data import default_mapping_path as default_mapping_path
+from ._mapping import (
+    Calibration as Calibration,
+    RetargetMap as RetargetMap,
+    calibrate as calibrate,
+    load_mapping as load_mapping,
+)
+from ._problem import (
+    RetargetProblem as RetargetProblem,
+    prepare_retarget as prepare_retarget,
+    stack_problems as stack_problems,
+)
+from ._solve import RetargetOptions as RetargetOptions, RetargetResult as RetargetResult, solve_retarget as solve_retarget
+from ._diagnostics import RetargetDiagnostics as RetargetDiagnostics, diagnostics as diagnostics, summary as summary
+from ._retarget import retarget as retarget, retarget_clips as retarget_clips
