@@ -2,7 +2,9 @@
 ``loop``, ``match``, ``skin``, ``render``, ``view`` and ``demo``.
 
 Every command takes an optional BVH file and uses the shipped default clip (a walk, see
-:mod:`jaxanim.default_clip`) without one. Computation is float64 unless ``--float32`` is given:
+:mod:`jaxanim.default_clip`) without one. An ``.npz`` in place of the BVH file is read as an AMASS clip
+(:func:`jaxanim.skeleton.read_amass`, Y up) with the body model given by ``--body-model MODEL``; without
+it the command exits 2 saying where to get one. Computation is float64 unless ``--float32`` is given:
 :func:`main` switches ``jax_enable_x64`` on before computing and leaves it on (toggling it back and
 forth inside one process is not safe with jax 0.10), while ``--float32`` leaves the setting alone
 and casts the parsed clip to float32. Forward kinematics of a whole clip is one batched call,
@@ -58,6 +60,7 @@ from ._render import add_render_parser
 from ._retarget import add_retarget_parser
 from ._view import add_view_parser
 from ._skin import add_skin_parser
+from ._common import _body_model
 from ._common import (  # the 0.1 module held these: ``jaxanim.cli`` still offers them
     _PROG as _PROG,
     _UI as _UI,
@@ -259,6 +262,10 @@ def _add_global_flags(p: argparse.ArgumentParser, default) -> None:
     p.add_argument("--no-compile-cache", action="store_true", default=default,
                    help="do not keep compiled programs on disk (default: kept in $XDG_CACHE_HOME/jaxanim or "
                         "~/.cache/jaxanim, or $JAX_COMPILATION_CACHE_DIR; clear it with rm -rf ~/.cache/jaxanim)")
+    p.add_argument("--body-model", metavar="MODEL", default=None if default is False else default,
+                   help="the SMPL / SMPL+H / SMPL-X body model (.npz or .pkl, as distributed by its project website "
+                        "after registering) that an AMASS .npz clip was fitted with: a FILE.npz is read as an AMASS "
+                        "clip with it")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -384,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
         jax.config.update("jax_enable_x64", True)
     args.dtype = np.float32 if args.float32 else np.float64
     try:
-        with _cache.compile_cache(None if args.no_compile_cache else _cache.compile_cache_dir()):
+        with _cache.compile_cache(None if args.no_compile_cache else _cache.compile_cache_dir()), \
+                _body_model(args.body_model):
             return args.func(args, ui)
     except BVHParseError as exc:
         ui.error(f"{exc.path}:{exc.line}: {exc.message}" if exc.line > 0 else f"{exc.path}: {exc.message}")

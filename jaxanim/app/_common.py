@@ -1,8 +1,10 @@
-"""What the commands share: output (progress to stderr, results to stdout), loading a clip, batched FK
-and the npz layout, drawing one frame."""
+"""What the commands share: output (progress to stderr, results to stdout), loading a clip (BVH, or an
+AMASS ``.npz`` with ``--body-model``), batched FK and the npz layout, drawing one frame."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import functools
 import os
@@ -17,7 +19,7 @@ import numpy as np
 
 from .._errors import JaxanimError
 from ..kinematics._fk import FKResult, forward_kinematics
-from ..skeleton._bvh import read_bvh
+from ..skeleton._amass import read_clip
 from ..skeleton._default_clip import default_clip_path
 from ..skeleton._skeleton import Motion, Skeleton
 
@@ -88,8 +90,23 @@ def _as_dtype(tree, dtype):
     return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
 
 
+#: ``--body-model``, for the command that :func:`_body_model` wraps: the commands call :func:`_load` without it.
+_BODY_MODEL: contextvars.ContextVar[str | None] = contextvars.ContextVar("jaxanim_body_model", default=None)
+
+
+@contextlib.contextmanager
+def _body_model(path: str | None):
+    """Within the block, :func:`_load` reads AMASS ``.npz`` clips with the body model ``path``."""
+    token = _BODY_MODEL.set(path)
+    try:
+        yield
+    finally:
+        _BODY_MODEL.reset(token)
+
+
 def _load(file: str | None, ui: _UI, dtype) -> _Clip:
-    """Parse ``file`` (or the shipped default clip), with its arrays in ``dtype``."""
+    """Parse ``file`` (or the shipped default clip), with its arrays in ``dtype``: a BVH file, or an AMASS
+    ``.npz`` read with the ``--body-model`` of the running command (:func:`_body_model`)."""
     if file is None:
         path = default_clip_path()
         label = f"{path.name} (the shipped default clip)"
@@ -98,7 +115,7 @@ def _load(file: str | None, ui: _UI, dtype) -> _Clip:
         label = str(file)
     ui.progress(f"parsing {label}")
     t0 = time.perf_counter()
-    skeleton, motion = read_bvh(path)
+    skeleton, motion = read_clip(path, body_model=_BODY_MODEL.get())
     skeleton, motion = _as_dtype(skeleton, dtype), _as_dtype(motion, dtype)
     jax.block_until_ready(motion)
     seconds = time.perf_counter() - t0

@@ -18,7 +18,7 @@ _LONG = 300
 
 def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     from .. import retargeting, robots  # noqa: PLC0415 (mujoco is an optional extra)
-    from ..skeleton import read_bvh  # noqa: PLC0415
+    from ..skeleton import read_clip  # noqa: PLC0415
     from ..kinematics import forward_kinematics  # noqa: PLC0415
 
     out = pathlib.Path(args.out)
@@ -33,7 +33,7 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     if source is None:
         from ..skeleton import default_clip_path  # noqa: PLC0415
         source = default_clip_path()
-    skeleton, motion = _as_dtype(read_bvh(source), dtype)
+    skeleton, motion = _as_dtype(read_clip(source, body_model=args.body_model), dtype)
     robot = robots.load_robot(robot_path, dtype=dtype)
     unbounded = [n for n, t, lim in zip(robot.jnt_names, robot.jnt_types, robot.jnt_limited)
                  if t in ("hinge", "slide") and not lim]

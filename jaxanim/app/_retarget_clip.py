@@ -127,8 +127,15 @@ class RetargetClip:
 
 
 def is_retarget_file(file) -> bool:
-    """Whether a command-line file argument names a retarget result (it ends in ``.npz``)."""
-    return file is not None and not isinstance(file, Mapping) and os.fspath(file).lower().endswith(".npz")
+    """Whether a command-line file argument names a retarget result: an ``.npz`` with ``qpos`` (an AMASS clip,
+    also an ``.npz``, has none; one that cannot be read is taken as a result, whose reader names the fault)."""
+    if file is None or isinstance(file, Mapping) or not os.fspath(file).lower().endswith(".npz"):
+        return False
+    try:
+        with zipfile.ZipFile(file) as z:
+            return "qpos.npy" in z.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return True
 
 
 def _read_npz(path: pathlib.Path, label: str) -> dict[str, np.ndarray]:

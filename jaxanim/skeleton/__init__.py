@@ -1,5 +1,5 @@
-"""Skeletons and clips: :class:`Skeleton`, :class:`Motion`, BVH read / write, the shipped clip and
-clip operations (resampling, retargeting) and motion processing (facing frames, alignment,
+"""Skeletons and clips: :class:`Skeleton`, :class:`Motion`, BVH read / write, AMASS (SMPL-family) clips,
+the shipped clip and clip operations (resampling, retargeting) and motion processing (facing frames, alignment,
 transitions, loops, inertialization, mirroring).
 """
 
@@ -19,6 +19,7 @@ from ._bvh import (
     read_bvh as read_bvh,
     write_bvh as write_bvh,
 )
+from ._amass import AMASSError as AMASSError, read_amass as read_amass, read_clip as read_clip
 from ._clips import (
     resample as resample,
     resample_at as resample_at,
