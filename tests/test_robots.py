@@ -193,7 +193,8 @@ def _pinocchio_to_ours(robot, ref, q_pin: np.ndarray) -> np.ndarray:
 @functools.cache
 def _romeo():
     ref = _refs(ROMEO)
-    robot = robots.load_robot(_ROBOTS / ROMEO, floating_base=True)
+    with pytest.warns(UserWarning, match=r"romeo_small.urdf: 20 collision mesh\(es\) skipped"):  # absent meshes
+        robot = robots.load_robot(_ROBOTS / ROMEO, floating_base=True)
     q = np.stack([_pinocchio_to_ours(robot, ref, x) for x in np.concatenate([ref["qpos"], ref["q_neutral"][None]])])
     out = jax.device_get(_program(robot, tuple(_prefixed("body", ref["jac_frame_names"])), ())(q))
     return robot, ref, out
@@ -209,7 +210,8 @@ def test_urdf_structure_and_ranges_match_pinocchio():
         j = robot.joint_index(str(name))
         assert robot.jnt_types[j] == "hinge" and robot.jnt_limited[j], name
         assert_close(f"jnt_range[{name}]", robot.jnt_range[j], [lo, hi])
-    fixed = robots.load_robot(_ROBOTS / ROMEO)  # no free flyer: the root link is fixed to the world
+    with pytest.warns(UserWarning, match="collision mesh"):
+        fixed = robots.load_robot(_ROBOTS / ROMEO)  # no free flyer: the root link is fixed to the world
     assert (fixed.nq, fixed.nv) == (robot.nq - 7, robot.nv - 6) and "root_joint" not in fixed.jnt_names
 
 
@@ -261,7 +263,8 @@ def test_small_urdf_continuous_prismatic_fixed_match_pinocchio(tmp_path):
     pin = pytest.importorskip("pinocchio")
     path = tmp_path / "small.urdf"
     path.write_text(_SMALL_URDF)
-    robot = robots.load_robot(path, floating_base=True)
+    with pytest.warns(UserWarning, match=r"collision mesh\(es\) skipped"):  # meshes that do not exist
+        robot = robots.load_robot(path, floating_base=True)
     assert robot.body_names == ("world", "base", "wheel", "rail", "arm", "tool")  # depth first, <joint> order
     assert robot.jnt_names == ("root_joint", "spin", "push", "bend")
     assert robot.jnt_types == ("free", "hinge", "slide", "hinge")

@@ -354,7 +354,8 @@ def test_floating_base_follows_a_rigid_motion_of_the_targets():
 
 
 def test_urdf_robot_with_a_floating_base_reaches_sole_and_wrist_targets():
-    romeo = _robot(_ROMEO, floating_base=True)
+    with pytest.warns(UserWarning, match="collision mesh"):  # its collision meshes are not shipped
+        romeo = _robot(_ROMEO, floating_base=True)
     q_goal = _random_qpos(romeo, 7)
     spec = (("l_sole", True, True), ("r_sole", True, True), ("l_wrist", True, False), ("r_wrist", True, False))
     targets = _targets_at(romeo, q_goal, spec)

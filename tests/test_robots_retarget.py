@@ -389,11 +389,12 @@ def test_bad_input_is_named(walk):
            "pairs": [{"source": "LeftFoot", "target": "left_foot_link", "foot": True}]}
     with pytest.raises(jaxanim.JaxanimError, match=r"left_foot_link.*left_ankle_roll_link"):
         retargeting.prepare_retarget(skel, motion, robot, bad)
-    fixed = robots.load_robot(shared_data_dir() / "robots" / "romeo" / "romeo_small.urdf")
+    with pytest.warns(UserWarning, match="collision mesh"):  # its collision meshes are not shipped
+        fixed = robots.load_robot(shared_data_dir() / "robots" / "romeo" / "romeo_small.urdf")
     romeo = {"root": {"source": "Hips", "target": "body"},
              "pairs": [{"source": "LeftFoot", "target": "l_ankle", "foot": True}]}
-    with pytest.raises(jaxanim.JaxanimError, match="floating_base=True"):
-        retargeting.prepare_retarget(skel, motion, fixed, romeo)
+    with pytest.raises(jaxanim.JaxanimError, match=r"not moved by a free joint and fixed_base=True \(--fixed-base\)"):
+        retargeting.prepare_retarget(skel, motion, fixed, romeo, fixed_base=True)
     with pytest.raises(jaxanim.JaxanimError, match="options.plant_weight"):
         retargeting.retarget(skel, motion, robot, retargeting.default_mapping_path(),
                         options=retargeting.RetargetOptions(plant_weight=-1.0))

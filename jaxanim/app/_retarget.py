@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 import time
+import warnings
 
 import jax
 import numpy as np
@@ -34,13 +35,25 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
         from ..skeleton import default_clip_path  # noqa: PLC0415
         source = default_clip_path()
     skeleton, motion = _as_dtype(read_clip(source, body_model=args.body_model), dtype)
-    robot = robots.load_robot(robot_path, dtype=dtype)
+    with warnings.catch_warnings(record=True) as caught:  # a URDF's missing meshes: one line, the CLI's way
+        warnings.simplefilter("always")
+        robot = robots.load_robot(robot_path, dtype=dtype)
+    for w in caught:
+        ui.warning(str(w.message))
     unbounded = [n for n, t, lim in zip(robot.jnt_names, robot.jnt_types, robot.jnt_limited)
                  if t in ("hinge", "slide") and not lim]
     if unbounded:
         ui.warning(f"{len(unbounded)} joint(s) without a range, treated as unbounded: {unbounded}")
     start = time.perf_counter()
-    problem = retargeting.prepare_retarget(skeleton, motion, robot, map_path)
+    with warnings.catch_warnings(record=True) as caught:  # a foot's default sole
+        warnings.simplefilter("always")
+        problem = retargeting.prepare_retarget(skeleton, motion, robot, map_path, fixed_base=args.fixed_base)
+    for w in caught:
+        ui.warning(str(w.message))
+    if problem.floating:
+        ui.progress(f"{robot.name}: its root body has no free joint; retargeting adds one, 'root_joint', first in "
+                    "qpos (--fixed-base refuses this)")
+    robot = retargeting.prepared_robot(robot, problem)  # the free joint and soles the problem was prepared with
     T = motion.num_frames
     if T >= _LONG:
         ui.progress(f"{source}: {T} frames prepared (contacts, anchors) in {_duration(time.perf_counter() - start)}; "
@@ -99,4 +112,6 @@ def add_retarget_parser(sub, common) -> None:
     p.add_argument("--render", metavar="OUT.gif", help="also draw the robot beside its source (GIF or MP4)")
     p.add_argument("--iterations", type=int, default=200, help="the most Levenberg-Marquardt iterations; the solve "
                    "stops once converged (default 200)")
+    p.add_argument("--fixed-base", action="store_true", help="the robot really is fixed: refuse it when its root "
+                   "has no free joint, instead of adding one named root_joint (a URDF has none)")
     p.set_defaults(func=_cmd_retarget)

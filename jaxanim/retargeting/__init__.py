@@ -13,10 +13,12 @@ from ._mapping import (
     RetargetMap as RetargetMap,
     calibrate as calibrate,
     load_mapping as load_mapping,
+    with_soles as with_soles,
 )
 from ._problem import (
     RetargetProblem as RetargetProblem,
     prepare_retarget as prepare_retarget,
+    prepared_robot as prepared_robot,
     stack_problems as stack_problems,
 )
 from ._solve import RetargetOptions as RetargetOptions, RetargetResult as RetargetResult, solve_retarget as solve_retarget

@@ -12,7 +12,7 @@ import numpy as np
 from .. import rotations as rot
 from .._types import Array, Bool, Float
 from ..robots._kinematics import world_frames, mm, surface_points, target_frames
-from ._problem import RetargetProblem
+from ._problem import RetargetProblem, prepared_robot
 from ..robots._robot import Robot
 from ..robots._tangent import tangent_difference, TangentLayout
 
@@ -68,7 +68,9 @@ def _frame_measures(robot: Robot, prob: RetargetProblem, q, p_target, R_target):
 
 @eqx.filter_jit
 def diagnostics(robot: Robot, problem: RetargetProblem, qpos: Float[Array, "T nq"]) -> RetargetDiagnostics:
-    """The per-frame measures of the robot clip ``qpos`` for ``problem`` (one clip; ``vmap`` for more)."""
+    """The per-frame measures of the robot clip ``qpos`` for ``problem`` (one clip; ``vmap`` for more);
+    ``robot`` as given to :func:`~jaxanim.retargeting.prepare_retarget` (or its :func:`prepared_robot`)."""
+    robot = prepared_robot(robot, problem)
     dtype = qpos.dtype
     prob = problem
     fps = 1.0 / prob.frame_time.astype(dtype)

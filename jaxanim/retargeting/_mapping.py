@@ -9,7 +9,12 @@ The JSON contract (issue 30)::
      "scale": "auto"}           # or a number (default "auto")
 
 Each pair may give ``position_weight`` (default 1), ``orientation_weight`` (default 0.1; 0: the
-pair matches the position only) and ``offset``; ``foot`` marks the pairs whose stance is planted.
+pair matches the position only) and ``offset``; ``foot`` marks the pairs whose stance is planted. A
+foot whose robot body has no collision geometry on it or below it (a URDF whose meshes are missing)
+stands on its target's frame: the sole is that frame's x-y plane, with a footprint of
+``"sole": {"size": [length, width]}`` (m, along the frame's x and y) centred on its origin, or by
+default ``0.3 x 0.12`` of the robot's leg length (the root target's height above the foot target in
+the zero pose), which a warning states.
 Everything else is computed by :func:`calibrate`: the source's world axes in the robot's
 (``source_up``: a Y-up source's Y becomes the robot's Z, a Z-up source keeps its axes; then the
 source is turned about up so that its pairs, seen from above, line up with the robot's in the zero
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from collections.abc import Mapping as MappingABC
 
 import equinox as eqx
@@ -43,15 +49,15 @@ from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Skeleton
 from ..robots._kinematics import world_frames, surface_points, target_frames, target_rows, forward_kinematics
-from ..robots._robot import Robot
+from ..robots._robot import Robot, with_surface_points
 
-__all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping"]
+__all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping", "with_soles"]
 
 #: A Y-up source (BVH: facing +Z, +X on its left) in the robot's axes (facing +X, +Y on its left, Z up).
 _Y_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _UP_AXES = {"y": _Y_UP, "z": np.eye(3)}
 _TOP_KEYS = {"root", "pairs", "source_up", "scale"}
-_PAIR_KEYS = {"source", "target", "foot", "position_weight", "orientation_weight", "offset"}
+_PAIR_KEYS = {"source", "target", "foot", "position_weight", "orientation_weight", "offset", "sole"}
 
 
 class RetargetMap(eqx.Module):
@@ -65,6 +71,7 @@ class RetargetMap(eqx.Module):
         source_up: ``"y"`` or ``"z"``.
         auto_scale: whether ``scale`` is computed (:func:`calibrate`).
         given_offsets: whether each pair's ``offset`` was given (else computed).
+        sole_size: each pair's ``"sole": {"size": [length, width]}`` (m), or ``None``.
         position_weight, orientation_weight: ``[pairs]`` weights of the matching terms.
         offset: ``[pairs, 4]`` wxyz rotation offsets (identity where not given).
         scale: the human-to-robot scale (``nan`` when ``auto_scale``).
@@ -78,6 +85,7 @@ class RetargetMap(eqx.Module):
     source_up: str = eqx.field(static=True)
     auto_scale: bool = eqx.field(static=True)
     given_offsets: tuple[bool, ...] = eqx.field(static=True)
+    sole_size: tuple[tuple[float, float] | None, ...] = eqx.field(static=True)
     position_weight: Float[Array, " pairs"]
     orientation_weight: Float[Array, " pairs"]
     offset: Float[Array, "pairs 4"]
@@ -110,6 +118,13 @@ def _number(where: str, value, *, positive: bool = False) -> float:
         raise JaxanimError(f"mapping: {where}: expected a {'positive' if positive else 'non-negative'} number, "
                            f"got {value!r}")
     return float(value)
+
+
+def _sole(where: str, value) -> tuple[float, float]:
+    size = value.get("size") if isinstance(value, MappingABC) and set(value) == {"size"} else None
+    if not isinstance(size, (list, tuple)) or len(size) != 2:
+        raise JaxanimError(f'mapping: {where}: expected {{"size": [length, width]}} (m), got {value!r}')
+    return (_number(f"{where}.size[0]", size[0], positive=True), _number(f"{where}.size[1]", size[1], positive=True))
 
 
 def _name(where: str, value) -> str:
@@ -150,7 +165,7 @@ def load_mapping(mapping) -> RetargetMap:
     scale = mapping.get("scale", "auto")
     auto = scale == "auto"
     scale = np.nan if auto else _number("scale", scale, positive=True)
-    sources, targets, feet, wp, wo, offsets, given = [], [], [], [], [], [], []
+    sources, targets, feet, wp, wo, offsets, given, soles = [], [], [], [], [], [], [], []
     for i, p in enumerate(pairs):
         where = f"pairs[{i}]"
         if not isinstance(p, MappingABC):
@@ -176,12 +191,13 @@ def load_mapping(mapping) -> RetargetMap:
         else:
             offsets.append(np.array([1.0, 0.0, 0.0, 0.0]))
             given.append(False)
+        soles.append(_sole(f"{where}.sole", p["sole"]) if "sole" in p else None)
     if not any(feet):
         raise JaxanimError('mapping: pairs: no pair is a foot ("foot": true); the feet are what is planted')
     return RetargetMap(
         root_source=_name("root.source", root["source"]), root_target=_name("root.target", root["target"]),
         sources=tuple(sources), targets=tuple(targets), feet=tuple(feet), source_up=up, auto_scale=auto,
-        given_offsets=tuple(given), position_weight=jnp.asarray(wp), orientation_weight=jnp.asarray(wo),
+        given_offsets=tuple(given), sole_size=tuple(soles), position_weight=jnp.asarray(wp), orientation_weight=jnp.asarray(wo),
         offset=jnp.asarray(np.stack(offsets)), scale=jnp.asarray(scale),
     )
 
@@ -230,6 +246,63 @@ _rest_fk = eqx.filter_jit(skeleton_fk)
 _canonical_quat = jax.jit(lambda R: rot.quat_canonical(rot.matrix_to_quat(R)))
 
 
+#: The default footprint of a foot without collision geometry, as fractions of the robot's leg length
+#: (an adult's foot is about 0.26 m long and 0.1 m wide for a leg of about 0.9 m).
+SOLE_FRACTIONS = (0.3, 0.12)
+
+
+def _footless(robot: Robot, bodies) -> list[int]:
+    """The indices (into ``bodies``) of the foot targets with no surface point on their body or below it."""
+    below = _tree.subtree(robot.body_parents)
+    return [k for k, body in enumerate(bodies) if not any(below[body, b] for b in robot.point_bodies)]
+
+
+def with_soles(robot: Robot, mapping: RetargetMap, *, warn: bool = True) -> tuple[Robot, tuple]:
+    """The robot with a footprint on each foot pair that has no collision geometry on it or below it.
+
+    The footprint's four corners lie in the foot target's frame at ``(+-length / 2, +-width / 2, 0)``
+    (its x-y plane is the sole), put on the target's body; the size is the pair's ``"sole"`` or, with a
+    warning, :data:`SOLE_FRACTIONS` of the leg length (the root target's height above the foot target at
+    the zero pose).
+
+    Returns:
+        ``(robot, added)``: the robot (the same object when no foot needs a sole) and the points added,
+        ``((body, (x, y, z)), ...)`` in the bodies' frames.
+    """
+    feet = [i for i, foot in enumerate(mapping.feet) if foot]
+    bodies, rows = target_rows(robot, [mapping.targets[i] for i in feet])
+    bare = _footless(robot, bodies)
+    if not bare:
+        return robot, ()
+    root_body, root_row = target_rows(robot, (mapping.root_target,))
+    (p, R), _ = _zero_pose_feet(robot, tuple(int(b) for b in bodies) + root_body, tuple(int(r) for r in rows) + root_row,
+                                ())
+    p, R = np.asarray(p, np.float64), np.asarray(R, np.float64)
+    zero = forward_kinematics(robot, robot.qpos0)
+    xpos, xmat = np.asarray(zero.xpos, np.float64), np.asarray(zero.xmat, np.float64)
+    added, defaulted = [], []
+    for k in bare:
+        i, body = feet[k], bodies[k]
+        size = mapping.sole_size[i]
+        if size is None:
+            leg = float(p[-1, 2] - p[k, 2])
+            if not leg > 0:  # not below the root: calibrate names the pair
+                continue
+            size = (SOLE_FRACTIONS[0] * leg, SOLE_FRACTIONS[1] * leg)
+            defaulted.append(f"{mapping.targets[i]} {size[0]:.3f} x {size[1]:.3f} m")
+        corners = np.array([[x * size[0] / 2, y * size[1] / 2, 0.0] for x in (-1, 1) for y in (-1, 1)])
+        in_body = (p[k] + corners @ R[k].T - xpos[body]) @ xmat[body]  # the target frame's corners in its body's
+        added += [(int(body), tuple(float(c) for c in point)) for point in in_body]
+    if defaulted and warn:
+        warnings.warn(f"robot {robot.name!r}: the feet {defaulted} have no collision geometry; each stands on its "
+                      f'target\'s frame with a footprint of {SOLE_FRACTIONS[0]} x {SOLE_FRACTIONS[1]} of the leg length; '
+                      'give the foot pair "sole": {"size": [length, width]} (m) to set it', stacklevel=3)
+    if not added:
+        return robot, ()
+    robot = with_surface_points(robot, [b for b, _ in added], [x for _, x in added])
+    return robot, tuple(added)
+
+
 def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], ...], np.ndarray, np.ndarray]:
     """Each foot target standing flat: ``(points, R [F, 3, 3], height [F])``.
 
@@ -245,9 +318,8 @@ def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], .
     for body in bodies:
         idx = tuple(i for i, b in enumerate(robot.point_bodies) if below[body, b])
         if not idx:
-            raise JaxanimError(f"robot: the foot {robot.body_names[body]!r} has no collision geometry (sphere, capsule, "
-                               "box, cylinder or ellipsoid) on it or below it, so its sole and the ground cannot be "
-                               "found")
+            raise JaxanimError(f"robot: the foot {robot.body_names[body]!r} has no collision geometry on it or below "
+                               "it, so its sole and the ground cannot be found (retargeting.with_soles gives it one)")
         points.append(idx)
     (p_zero, R_zero), surfaces = _zero_pose_feet(robot, tuple(int(b) for b in bodies), tuple(int(r) for r in rows),
                                                  tuple(points))
@@ -304,6 +376,7 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
     scale = heights[1] / heights[0] if mapping.auto_scale else float(mapping.scale)
     given = np.asarray(mapping.offset, np.float64)
     feet = [i for i, foot in enumerate(mapping.feet) if foot]
+    robot, _ = with_soles(robot, mapping)  # a foot without geometry stands on its target's frame
     R_pair = R_rob[tgt]
     R_pair[feet] = _standing_feet(robot, target_rows(robot, [mapping.targets[i] for i in feet])[0], [tgt[i] for i in feet])[1]
     M = np.swapaxes(R_src[src], -1, -2) @ R_pair  # each pair's offset, computed in one call

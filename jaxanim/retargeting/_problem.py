@@ -26,11 +26,11 @@ from ..kinematics._contacts import true_runs, detect_foot_contacts
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
 from ..robots._kinematics import target_rows
-from ._mapping import Calibration, RetargetMap, _canonical_quat, _standing_feet, calibrate, load_mapping
-from ..robots._robot import Robot
+from ._mapping import Calibration, RetargetMap, _canonical_quat, _standing_feet, calibrate, load_mapping, with_soles
+from ..robots._robot import Robot, with_floating_base, with_surface_points
 from ..robots._tangent import free_joint_of
 
-__all__ = ["RetargetProblem", "prepare_retarget", "stack_problems"]
+__all__ = ["RetargetProblem", "prepare_retarget", "prepared_robot", "stack_problems"]
 
 
 class RetargetProblem(eqx.Module):
@@ -62,6 +62,10 @@ class RetargetProblem(eqx.Module):
         axes: ``[3, 3]`` the source's world axes in the robot's (:class:`Calibration`).
         ground: the source's ground height along the robot's up axis (its lowest foot joint over the
             clip, source units).
+        floating: whether the preparation gave the robot a free joint (static; :func:`prepared_robot`).
+        added_points: the sole points the preparation gave feet without collision geometry, ``((body,
+            (x, y, z)), ...)`` in the bodies' frames (static; :func:`prepared_robot`).
+        robot_points: the number of surface points of the robot as prepared (static).
     """
 
     names: tuple[str, ...] = eqx.field(static=True)
@@ -84,6 +88,9 @@ class RetargetProblem(eqx.Module):
     frame_time: Float[Array, ""]
     axes: Float[Array, "3 3"]
     ground: Float[Array, ""]
+    floating: bool = eqx.field(static=True, default=False)
+    added_points: tuple[tuple[int, tuple[float, float, float]], ...] = eqx.field(static=True, default=())
+    robot_points: int = eqx.field(static=True, default=-1)
 
     @property
     def num_frames(self) -> int:
@@ -134,18 +141,48 @@ def _with_root(mapping: RetargetMap) -> RetargetMap:
         root_source=mapping.root_source, root_target=mapping.root_target,
         sources=(mapping.root_source,) + mapping.sources, targets=(mapping.root_target,) + mapping.targets,
         feet=(False,) + mapping.feet, source_up=mapping.source_up, auto_scale=mapping.auto_scale,
-        given_offsets=(False,) + mapping.given_offsets,
+        given_offsets=(False,) + mapping.given_offsets, sole_size=(None,) + mapping.sole_size,
         position_weight=jnp.concatenate([one, mapping.position_weight]),
         orientation_weight=jnp.concatenate([one, mapping.orientation_weight]),
         offset=jnp.concatenate([jnp.asarray([[1.0, 0.0, 0.0, 0.0]], mapping.offset.dtype), mapping.offset]),
         scale=mapping.scale)
 
 
-def _check_robot(robot: Robot, root_body: int) -> None:
-    if free_joint_of(robot, root_body) is None:
+def _floating(robot: Robot, root_body: int, fixed_base: bool) -> tuple[Robot, bool]:
+    """The robot with a free joint on its root body where the root target is not moved by one."""
+    if free_joint_of(robot, root_body) is not None:
+        return robot, False
+    if fixed_base:
         raise JaxanimError(
-            f"robot: the root target {robot.body_names[root_body]!r} is not moved by a free joint, so the robot "
-            "cannot follow the clip through the world; load it with load_robot(path, floating_base=True)")
+            f"robot: the root target {robot.body_names[root_body]!r} is not moved by a free joint and fixed_base=True "
+            "(--fixed-base) keeps the robot fixed, so it cannot follow the clip through the world; leave fixed_base "
+            "off to add a free joint 'root_joint' on the root body, or load it with load_robot(path, "
+            "floating_base=True)")
+    if robot.body_parents[root_body] != 0 and root_body in robot.jnt_bodies:
+        raise JaxanimError(f"robot: the root target {robot.body_names[root_body]!r} is moved by joints but by no free "
+                           "joint; map the root to the robot's root body")
+    return with_floating_base(robot), True
+
+
+def prepared_robot(robot: Robot, problem: RetargetProblem) -> Robot:
+    """The robot as ``problem`` was prepared on it, what :func:`solve_retarget` solves on and the result's
+    ``qpos`` is laid out for: with the free joint ``"root_joint"`` on its root body where
+    :func:`prepare_retarget` added one (first in ``qpos``), and the sole points it gave feet without
+    collision geometry. A robot that has them already is returned as it is.
+
+    Raises:
+        JaxanimError: if ``robot`` is not the one the problem was prepared on (another count of surface points).
+    """
+    if problem.floating and free_joint_of(robot, problem.bodies[0]) is None:
+        robot = with_floating_base(robot)
+    n, k = len(robot.point_bodies), len(problem.added_points)
+    if problem.robot_points >= 0 and n != problem.robot_points:
+        if k and n == problem.robot_points - k:
+            robot = with_surface_points(robot, [b for b, _ in problem.added_points], [x for _, x in problem.added_points])
+        else:
+            raise JaxanimError(f"robot: {n} surface points, but the problem was prepared on a robot with "
+                               f"{problem.robot_points}; pass the robot it was prepared with")
+    return robot
 
 
 def prepare_retarget(
@@ -157,6 +194,7 @@ def prepare_retarget(
     calibration: Calibration | None = None,
     contacts=None,
     length: int | None = None,
+    fixed_base: bool = False,
 ) -> RetargetProblem:
     """The retargeting problem of one clip (host work: forward kinematics, contacts, anchors).
 
@@ -169,9 +207,15 @@ def prepare_retarget(
             (default :func:`~jaxanim.kinematics.detect_foot_contacts` on the feet's source joints).
         length: pad to this many frames (default: the clip's), for batching clips of different
             lengths.
+        fixed_base: refuse a robot whose root target is not moved by a free joint, instead of adding
+            one (:func:`~jaxanim.robots.with_floating_base`, named ``"root_joint"``, first in ``qpos``).
+
+    A foot whose robot body has no collision geometry stands on its target's frame
+    (:func:`with_soles`). :func:`prepared_robot` gives the robot with the free joint and soles that
+    the problem was prepared on.
 
     Raises:
-        JaxanimError: bad names in the map (listing the valid ones), a robot without a floating base,
+        JaxanimError: bad names in the map (listing the valid ones), a fixed robot with ``fixed_base``,
             a clip with NaN or inf, ``contacts`` of the wrong shape, ``length`` shorter than the clip.
     """
     mapping = mapping if isinstance(mapping, RetargetMap) else load_mapping(mapping)
@@ -182,7 +226,8 @@ def prepare_retarget(
     T = motion.num_frames
     full = _with_root(mapping)
     bodies, rows = target_rows(robot, full.targets)
-    _check_robot(robot, bodies[0])
+    robot, floating = _floating(robot, bodies[0], bool(fixed_base))
+    robot, added = with_soles(robot, full)
     calib = calibrate(full, skeleton, robot) if calibration is None else calibration
     offsets = np.asarray(calib.offset, np.float64)
     if calibration is not None:  # a user's calibration has the pairs only: compute the root's
@@ -244,7 +289,8 @@ def prepare_retarget(
         anchors=jnp.asarray(padded(anchors), dtype), anchor_orientations=jnp.asarray(padded(_quat(anchor_R)), dtype),
         stance_height=jnp.asarray(stance_height, dtype), foot_height=jnp.asarray(foot_height, dtype),
         mask=jnp.asarray(np.arange(length) < T), frame_time=jnp.asarray(float(motion.frame_time), dtype),
-        axes=jnp.asarray(axes, dtype), ground=jnp.asarray(ground, dtype))
+        axes=jnp.asarray(axes, dtype), ground=jnp.asarray(ground, dtype), floating=floating, added_points=added,
+        robot_points=len(robot.point_bodies))
 
 
 @eqx.filter_jit
@@ -267,7 +313,8 @@ def stack_problems(problems: Sequence[RetargetProblem]) -> RetargetProblem:
     for i, p in enumerate(problems):
         if not isinstance(p, RetargetProblem):
             raise JaxanimError(f"problems[{i}]: expected a RetargetProblem, got {type(p).__name__}")
-        if (p.names, p.feet, p.foot_points, p.oriented) != (first.names, first.feet, first.foot_points, first.oriented):
+        if ((p.names, p.feet, p.foot_points, p.oriented, p.floating, p.added_points)
+                != (first.names, first.feet, first.foot_points, first.oriented, first.floating, first.added_points)):
             raise JaxanimError(f"problems[{i}]: prepared with another robot or map than problems[0]")
         if p.num_frames != first.num_frames:
             raise JaxanimError(f"problems[{i}]: {p.num_frames} frames, problems[0] has {first.num_frames}; pad them to "

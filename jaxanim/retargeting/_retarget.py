@@ -49,6 +49,7 @@ def retarget(
     options: RetargetOptions | None = None,
     calibration: Calibration | None = None,
     contacts=None,
+    fixed_base: bool = False,
 ) -> RetargetResult:
     """Retarget one clip onto a robot: one least-squares problem over the whole clip.
 
@@ -66,14 +67,21 @@ def retarget(
         calibration: axes, scale and offsets (default :func:`calibrate`: from the source's rest pose
             and the robot's zero pose).
         contacts: ``[frames, feet]`` stance frames instead of the detection.
+        fixed_base: refuse a robot whose root is not moved by a free joint instead of adding one
+            (see :func:`prepare_retarget`).
+
+    A robot without a free joint on its root (a URDF) gets one, ``"root_joint"``, first in ``qpos``
+    (:func:`~jaxanim.robots.with_floating_base`); a foot without collision geometry stands on its
+    target's frame (:func:`with_soles`).
 
     Returns:
-        :class:`RetargetResult`: ``qpos [T, nq]``, ``fps``, ``result``, ``success``, ``cost`` and the
+        :class:`RetargetResult`: ``qpos [T, nq]`` (of :func:`prepared_robot`), ``fps``, ``result``, ``success``, ``cost`` and the
         per-frame ``diagnostics`` (:func:`summary` condenses them).
     """
     _check_robot(robot)
     options = _check_options(options)
-    problem = prepare_retarget(skeleton, motion, robot, mapping, calibration=calibration, contacts=contacts)
+    problem = prepare_retarget(skeleton, motion, robot, mapping, calibration=calibration, contacts=contacts,
+                               fixed_base=fixed_base)
     return solve_retarget(robot, problem, options)
 
 

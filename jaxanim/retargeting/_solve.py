@@ -55,7 +55,7 @@ from .._types import Array, Float
 from ..robots._kinematics import dof_columns, world_frames, mm, surface_points, target_frames
 from ._diagnostics import RetargetDiagnostics, diagnostics
 from ..robots._tangent import tangent_difference, free_joint_of, TangentLayout, retract
-from ._problem import RetargetProblem
+from ._problem import RetargetProblem, prepared_robot
 from ..robots._robot import Robot
 
 __all__ = ["RetargetOptions", "RetargetResult", "solve_retarget"]
@@ -453,10 +453,13 @@ def solve_retarget(robot: Robot, problem: RetargetProblem, options: RetargetOpti
     """Solve one prepared clip (:func:`~jaxanim.retargeting.prepare_retarget`); batch clips with ``jax.vmap``
     over :func:`~jaxanim.retargeting.stack_problems` (``in_axes=(None, 0, None)``). Jit-compiled once per
     robot, map and clip length; differentiable with respect to the problem's weights and scale and the
-    options' weights.
+    options' weights. ``robot`` is the robot given to :func:`~jaxanim.retargeting.prepare_retarget`: the
+    free joint and soles it added are added here too (:func:`~jaxanim.retargeting.prepared_robot`), and
+    ``qpos`` is that robot's.
     """
     options = RetargetOptions() if options is None else options
     _check_oriented(problem)
+    robot = prepared_robot(robot, problem)
     q, cost, result, success, steps = _solve(robot, problem, options)
     fps = 1.0 / problem.frame_time
     return RetargetResult(qpos=q, fps=fps, result=result, success=success, cost=cost,

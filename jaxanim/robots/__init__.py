@@ -24,7 +24,7 @@ from ._load import (
     load_robot as load_robot,
     robot_from_mujoco as robot_from_mujoco,
 )
-from ._robot import Robot as Robot
+from ._robot import Robot as Robot, with_floating_base as with_floating_base, with_surface_points as with_surface_points
 
 #: The names that moved out of this package, and their new home (deprecated here for one release).
 _MOVED = {

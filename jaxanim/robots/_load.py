@@ -2,9 +2,15 @@
 
 Both formats are compiled by the ``mujoco`` package, so MJCF defaults, ``childclass``, degrees,
 Euler angles, ``fromto``, quaternion normalisation and URDF ``<origin rpy>`` are all MuJoCo's; the
-:class:`Robot` is then read from the compiled ``mujoco.MjModel``. Only kinematics is read, so mesh
-files are never needed: a URDF is loaded without its ``<visual>`` / ``<collision>`` elements, and an
+:class:`Robot` is then read from the compiled ``mujoco.MjModel``. Mesh files are never needed: an
 MJCF whose mesh (or height-field, texture) files are missing is compiled without them.
+
+A URDF keeps its ``<collision>`` geometry (what retargeting keeps on the ground), not its
+``<visual>``: boxes, spheres and cylinders as they are; a mesh where its file resolves
+(``package://NAME/...`` against the URDF's parent folders named ``NAME`` and the folders of
+``ROS_PACKAGE_PATH``, a relative path against the URDF's folder) and MuJoCo reads its format (STL,
+OBJ); each mesh whose file is missing or unreadable is skipped, all of them named in one warning.
+A mesh's surface points are its support points along 26 directions (its extreme vertices).
 
 URDF import (MuJoCo's): every link becomes a body (``fusestatic="false"``, so links behind fixed
 joints, such as sole or sensor frames, stay bodies), named after the link; each ``revolute`` /
@@ -72,13 +78,59 @@ def _kind(path: pathlib.Path, text: str) -> str:
     raise RobotLoadError(path, f"expected an MJCF (<mujoco>) or URDF (<robot>) file, the root element is <{root.tag}>")
 
 
-def _urdf_text(text: str) -> str:
-    """The URDF without ``<visual>`` / ``<collision>``, with MuJoCo's compiler options for kinematics."""
+#: The mesh formats MuJoCo's compiler reads (a URDF's Collada ``.dae`` meshes are not among them).
+_MESH_SUFFIXES = (".stl", ".obj", ".msh")
+#: The URDF geometry MuJoCo imports besides meshes.
+_PRIMITIVES = ("box", "sphere", "cylinder")
+
+
+def _resolve_mesh(filename: str, urdf: pathlib.Path) -> pathlib.Path | None:
+    """A URDF mesh's file on disk, or ``None``: ``package://NAME/rest`` is looked for under each parent
+    folder of the URDF named ``NAME`` and under each folder of ``ROS_PACKAGE_PATH`` (``DIR/NAME/rest``, or
+    ``DIR/rest`` where ``DIR`` is named ``NAME``); ``file://`` is a path; anything else is relative to the
+    URDF's folder."""
+    here = urdf.resolve().parent
+    if filename.startswith("package://"):
+        package, _, rest = filename[len("package://"):].partition("/")
+        candidates = [parent / rest for parent in (here, *here.parents) if parent.name == package]
+        for folder in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep):
+            if folder:
+                folder = pathlib.Path(folder)
+                candidates += [folder / package / rest] + ([folder / rest] if folder.name == package else [])
+    elif filename.startswith("file://"):
+        candidates = [pathlib.Path(filename[len("file://"):])]
+    else:
+        candidates = [here / filename]
+    return next((c.resolve() for c in candidates if c.is_file()), None)
+
+
+def _urdf_text(text: str, path: pathlib.Path) -> str:
+    """The URDF without ``<visual>``, its ``<collision>`` meshes resolved to absolute paths (those that do not
+    resolve, or that MuJoCo cannot read, removed with one warning), with MuJoCo's compiler options."""
     root = ET.fromstring(text)
+    skipped = []
     for link in root.iter("link"):
-        for tag in ("visual", "collision"):
-            for e in link.findall(tag):
+        for e in link.findall("visual"):
+            link.remove(e)
+        for e in link.findall("collision"):
+            geometry = e.find("geometry")
+            shape = geometry[0] if geometry is not None and len(geometry) else None
+            if shape is None or shape.tag not in (*_PRIMITIVES, "mesh"):
                 link.remove(e)
+                continue
+            if shape.tag != "mesh":
+                continue
+            name = shape.get("filename", "")
+            found = _resolve_mesh(name, path)
+            if found is None or found.suffix.lower() not in _MESH_SUFFIXES:
+                why = "not found" if found is None else f"a {found.suffix} file, which MuJoCo does not read"
+                skipped.append(f"{link.get('name')}: {name} ({why})")
+                link.remove(e)
+            else:
+                shape.set("filename", str(found))
+    if skipped:
+        warnings.warn(f"{path}: {len(skipped)} collision mesh(es) skipped (the robot keeps its kinematics and its "
+                      f"other collision geometry): {skipped}", stacklevel=3)
     mj = root.find("mujoco")
     if mj is None:
         mj = ET.SubElement(root, "mujoco")
@@ -87,8 +139,10 @@ def _urdf_text(text: str) -> str:
         comp = ET.SubElement(mj, "compiler")
     # fusestatic="false": links behind fixed joints stay bodies; balanceinertia: some URDF inertias
     # break the triangle inequality (Romeo's), and MuJoCo refuses them; inertia is not read here.
+    # strippath="false": the meshes' absolute paths are used as they are (MuJoCo keeps only the file name
+    # of a URDF mesh by default).
     comp.attrib.update(fusestatic="false", discardvisual="true", balanceinertia="true", inertiafromgeom="false",
-                       angle="radian", autolimits="true")
+                       angle="radian", autolimits="true", strippath="false")
     return ET.tostring(root, encoding="unicode")
 
 
@@ -123,9 +177,13 @@ def _compile(spec, path):
             return spec.compile()
         except ValueError as exc:
             msg = str(exc)
-            if not stripped and ("Error opening file" in msg or "resource not found" in msg.lower()):
+            unreadable = "decoder" in msg or "mesh" in msg.lower()
+            if not stripped and ("Error opening file" in msg or "resource not found" in msg.lower() or unreadable):
                 lost = _strip_files(spec)
                 stripped = True
+                if unreadable:
+                    warnings.warn(f"{path}: compiled without its meshes, one of which MuJoCo could not read: "
+                                  f"{msg.strip()}", stacklevel=3)
                 if lost:
                     warnings.warn(
                         f"{path}: compiled without its mesh / height-field files (kinematics only); these bodies "
@@ -186,7 +244,7 @@ def load_robot(path: str | os.PathLike, *, floating_base: bool = False, dtype=No
     kind = _kind(path, text)
     try:
         if kind == "urdf":
-            spec = mujoco.MjSpec.from_string(_urdf_text(text))
+            spec = mujoco.MjSpec.from_string(_urdf_text(text, path))
         else:
             spec = mujoco.MjSpec.from_file(str(path))
     except ValueError as exc:
@@ -202,9 +260,14 @@ def _names(model, obj, n: int) -> tuple[str, ...]:
     return tuple(mujoco.mj_id2name(model, obj, i) or "" for i in range(n))
 
 
+#: The 26 directions (the cube's faces, edges and corners) along which a mesh's extreme vertices stand for it.
+_DIRECTIONS = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)],
+                       np.float64)
+
+
 def _surface_points(model) -> tuple[tuple[int, ...], np.ndarray, np.ndarray]:
     """``(bodies, points [P, 3], radii [P])``: each geom's points in its body's frame (see
-    :class:`Robot`'s ``point_pos``). Planes, height fields and meshes give none."""
+    :class:`Robot`'s ``point_pos``). A mesh gives its extreme vertices along 26 directions; planes and height fields give none."""
     mujoco = _import_mujoco()
     G = mujoco.mjtGeom
     bodies, points, radii = [], [], []
@@ -224,11 +287,17 @@ def _surface_points(model) -> tuple[tuple[int, ...], np.ndarray, np.ndarray]:
             local, r = np.concatenate([rim - [0, 0, size[1]], rim + [0, 0, size[1]]]), 0.0
         elif t == G.mjGEOM_ELLIPSOID:
             local, r = np.concatenate([np.diag(size), -np.diag(size)]), 0.0
+        elif t == G.mjGEOM_MESH and model.geom_dataid[g] >= 0:
+            m = int(model.geom_dataid[g])
+            a, n = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+            local, r = np.array(model.mesh_vert[a:a + n], np.float64), 0.0
         else:
             continue
         R = np.zeros(9)
         mujoco.mju_quat2Mat(R, np.array(model.geom_quat[g], np.float64))
         pts = local @ R.reshape(3, 3).T + np.array(model.geom_pos[g], np.float64)
+        if t == G.mjGEOM_MESH:  # its extreme vertices along the directions, in the body's frame
+            pts = pts[np.unique(np.argmax(pts @ _DIRECTIONS.T, axis=0))]
         bodies += [b] * len(pts)
         points.append(pts)
         radii += [r] * len(pts)

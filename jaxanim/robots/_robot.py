@@ -26,6 +26,8 @@ Conventions (MuJoCo's):
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -225,3 +227,60 @@ def unbounded_range(jnt_range, jnt_limited) -> np.ndarray:
     lim = np.asarray(jnt_limited, dtype=bool).reshape(-1)
     rng[~lim] = (-np.inf, np.inf)
     return rng
+
+
+def with_floating_base(robot: Robot, *, name: str = "root_joint") -> Robot:
+    """The robot with a free joint on its root body: what ``load_robot(path, floating_base=True)`` gives.
+
+    The joint, named ``name`` (Pinocchio's name for its free flyer), comes first in ``jnt_names``,
+    ``qpos`` and ``qvel`` (MuJoCo's layout: its body is the first body), and its part of ``qpos0`` is the
+    root body's pose in the file (``body_pos``, ``body_quat``), so the zero pose is unchanged.
+
+    Raises:
+        JaxanimError: if the robot has more than one body under the world, or its root body already has
+            a joint.
+    """
+    roots = [b for b, p in enumerate(robot.body_parents) if p == 0]
+    if len(roots) != 1:
+        raise JaxanimError(f"robot: a floating base needs exactly one root body under the world, found "
+                           f"{[robot.body_names[b] for b in roots]}")
+    root = roots[0]
+    if root in robot.jnt_bodies:
+        raise JaxanimError(f"robot: the root body {robot.body_names[root]!r} already has joints "
+                           f"{[n for n, b in zip(robot.jnt_names, robot.jnt_bodies) if b == root]}")
+    if name in robot.jnt_names:
+        raise JaxanimError(f"name: the robot already has a joint named {name!r}")
+    dtype = robot.qpos0.dtype
+
+    def first(row, x):
+        return jnp.concatenate([jnp.asarray([row], dtype), x.astype(dtype)])
+
+    return dataclasses.replace(
+        robot, jnt_names=(name,) + robot.jnt_names, jnt_types=("free",) + robot.jnt_types,
+        jnt_bodies=(root,) + robot.jnt_bodies, jnt_qposadr=(0,) + tuple(a + JOINT_NQ["free"] for a in robot.jnt_qposadr),
+        jnt_dofadr=(0,) + tuple(a + JOINT_NV["free"] for a in robot.jnt_dofadr), jnt_limited=(False,) + robot.jnt_limited,
+        nq=robot.nq + JOINT_NQ["free"], nv=robot.nv + JOINT_NV["free"], jnt_pos=first([0.0, 0.0, 0.0], robot.jnt_pos),
+        jnt_axis=first([0.0, 0.0, 1.0], robot.jnt_axis), jnt_range=first([-np.inf, np.inf], robot.jnt_range),
+        qpos0=jnp.concatenate([robot.body_pos[root].astype(dtype), robot.body_quat[root].astype(dtype), robot.qpos0]))
+
+
+def with_surface_points(robot: Robot, bodies, points, radii=None) -> Robot:
+    """The robot with more surface points (:class:`Robot`'s ``point_pos``), appended after its own.
+
+    Args:
+        robot: the robot.
+        bodies: ``[P]`` the body (index) each point is on.
+        points: ``[P, 3]`` the points in their bodies' frames (m).
+        radii: ``[P]`` the radius around each point (default 0: corners).
+    """
+    bodies = tuple(int(b) for b in bodies)
+    points = np.asarray(points, np.float64).reshape(len(bodies), 3)
+    radii = np.zeros(len(bodies)) if radii is None else np.asarray(radii, np.float64).reshape(len(bodies))
+    bad = [b for b in bodies if not 0 < b < robot.num_bodies]
+    if bad:
+        raise JaxanimError(f"bodies: expected body indices in [1, {robot.num_bodies}), got {bad}")
+    dtype = robot.point_pos.dtype
+    return dataclasses.replace(
+        robot, point_bodies=robot.point_bodies + bodies,
+        point_pos=jnp.concatenate([robot.point_pos, jnp.asarray(points, dtype)]),
+        point_radius=jnp.concatenate([robot.point_radius, jnp.asarray(radii, dtype)]))
