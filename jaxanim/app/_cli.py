@@ -58,6 +58,7 @@ from ._motion import add_motion_parsers
 from ._match import add_match_parser
 from ._render import add_render_parser
 from ._retarget import add_retarget_parser
+from ._retarget_map import add_retarget_map_parser
 from ._view import add_view_parser
 from ._skin import add_skin_parser
 from ._common import _body_model
@@ -349,6 +350,7 @@ def _build_parser() -> argparse.ArgumentParser:
     add_match_parser(sub, common)
     add_render_parser(sub, common)
     add_retarget_parser(sub, common)
+    add_retarget_map_parser(sub, common)
     add_view_parser(sub, common)
     add_skin_parser(sub, common)
 

@@ -47,7 +47,8 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:  # a foot's default sole
         warnings.simplefilter("always")
-        problem = retargeting.prepare_retarget(skeleton, motion, robot, map_path, fixed_base=args.fixed_base)
+        problem = retargeting.prepare_retarget(skeleton, motion, robot, retargeting.auto_map(skeleton, robot)
+                                               if map_path == "auto" else map_path, fixed_base=args.fixed_base)
     for w in caught:
         ui.warning(str(w.message))
     if problem.floating:
@@ -107,7 +108,9 @@ def add_retarget_parser(sub, common) -> None:
                                    "and map.")
     p.add_argument("source", nargs="?", metavar="SOURCE.bvh", help="the clip (default: the shipped walk)")
     p.add_argument("--robot", metavar="ROBOT.xml|ROBOT.urdf", help="the robot (default: the shipped humanoid)")
-    p.add_argument("--map", metavar="MAP.json", help="the retargeting map (default: the shipped walk's)")
+    p.add_argument("--map", metavar="MAP.json|auto", help="the retargeting map (default: the shipped walk's), or "
+                   "'auto' to find it from the clip's and the robot's shapes (retargeting.auto_map, the map "
+                   "that `jaxanim retarget-map` writes)")
     p.add_argument("--out", "-o", default="retarget.npz", metavar="OUT.npz", help="output (default retarget.npz)")
     p.add_argument("--render", metavar="OUT.gif", help="also draw the robot beside its source (GIF or MP4)")
     p.add_argument("--iterations", type=int, default=200, help="the most Levenberg-Marquardt iterations; the solve "

@@ -24,3 +24,4 @@ from ._problem import (
 from ._solve import RetargetOptions as RetargetOptions, RetargetResult as RetargetResult, solve_retarget as solve_retarget
 from ._diagnostics import RetargetDiagnostics as RetargetDiagnostics, diagnostics as diagnostics, summary as summary
 from ._retarget import retarget as retarget, retarget_clips as retarget_clips
+from ._auto_map import auto_map as auto_map, auto_map_dict as auto_map_dict
