@@ -1,9 +1,11 @@
-"""``jaxanim render`` and ``jaxanim view`` of a retarget result (.npz): the robot's sticks beside its
-source skeleton, from a synthetic result (a 3-body chain and a 5-joint source walking forward along
-+X, Z up), read back with Pillow; the errors for bad results; the viewer's scene.
+"""``jaxanim render`` and ``jaxanim view`` of a retarget result (.npz): the robot beside its source
+skeleton, from a synthetic result (a 3-body chain and a 5-joint source walking forward along +X, Z
+up), read back with Pillow; the robot drawn from its collision geometry (the result's geometry keys)
+where MuJoCo's ``mj_kinematics`` puts the geoms, and as sticks without those keys; the errors for bad
+results; the viewer's scene.
 
 Every render is small (a few frames at 100 x 100 pixels) and runs in-process through ``main([...])``
-or :func:`render_retarget`; nothing here runs JAX.
+or :func:`render_retarget`; nothing here runs JAX (the geometry's reference is MuJoCo's).
 """
 
 from __future__ import annotations
@@ -68,6 +70,25 @@ def _result(T: int = _T) -> dict[str, np.ndarray]:
         "contacts": contacts,
         "foot_slide": np.zeros((T, F)), "penetration": np.zeros((T, F)), "position_error": np.zeros((T, 3)),
         "robot": np.array("robots/chain.xml"), "source": np.array("clips/walk.bvh"), "map": np.array("chain.json"),
+    }
+
+
+def _with_geometry(d: dict) -> dict:
+    """The result with the robot's geometry keys: the pelvis a sphere, a box (the torso), an ellipsoid (the
+    head) and a mesh (its points); the shin a capsule (the thigh, above its origin) and a cylinder (below);
+    the foot no geom, only a sole's four corners on the ground. The bodies keep the world's axes."""
+    T, B = d["body_positions"].shape[:2]
+    return {
+        **d, "body_xmat": np.tile(np.eye(3), (T, B, 1, 1)),
+        "geom_body": np.array([1, 1, 1, 1, 2, 2]),
+        "geom_type": np.array(["sphere", "box", "ellipsoid", "mesh", "capsule", "cylinder"]),
+        "geom_size": np.array([[0.1, 0, 0], [0.08, 0.12, 0.15], [0.07, 0.08, 0.1], [0.05, 0.05, 0.05],
+                               [0.05, 0.2, 0], [0.04, 0.2, 0]]),
+        "geom_pos": np.array([[0, 0, 0], [0, 0, 0.3], [0, 0, 0.6], [0, 0, 0], [0, 0, 0.2], [0, 0, -0.2]]),
+        "geom_quat": np.tile([1.0, 0, 0, 0], (6, 1)),
+        "point_body": np.array([1, 1, 3, 3, 3, 3]),
+        "point_pos": np.array([[0.05, 0, 0], [-0.05, 0, 0], [-0.1, -0.05, -0.08], [-0.1, 0.05, -0.08],
+                               [0.1, -0.05, -0.08], [0.1, 0.05, -0.08]]),
     }
 
 
@@ -152,6 +173,166 @@ def test_scene_layout():
     assert source_shift(load_retarget(far)) == 0.0
 
 
+def test_render_retarget_from_its_geometry(tmp_path, capsys):
+    """With the geometry keys the robot is its geoms (wider than its sticks), beside its source."""
+    data = _with_geometry(_result())
+    clip = load_retarget(data)
+    assert clip.geometry is not None and clip.geometry.geom_type[4] == "capsule" and clip.body_xmat.shape == (_T, 4, 3, 3)
+    path = _save(tmp_path / "geoms.npz", data)
+    code, _, err = _run(capsys, "render", path, "--size", _SIZE, "--out", tmp_path / "geoms.gif")
+    assert code == 0, err
+    solid = _frames(tmp_path / "geoms.gif")
+    code, _, err = _run(capsys, "render", _save(tmp_path / "sticks.npz", _result()), "--size", _SIZE, "--out",
+                        tmp_path / "sticks.gif")
+    assert code == 0, err
+    sticks = _frames(tmp_path / "sticks.gif")
+    for k in (0, _T - 1):
+        _assert_side_by_side(solid[k], f"frame {k}")
+        wide, thin = (_orange(f[k]).sum() for f in (solid, sticks))
+        assert wide > 2 * thin, f"frame {k}: {wide} robot pixels from its geometry, {thin} as sticks"
+
+
+def _orange(img: np.ndarray) -> np.ndarray:
+    """The robot's colour in any shade (the boxes are shaded, the outlines darker)."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r - b > 90) & (r > g) & (g > b)
+
+
+def test_shapes_of_a_synthetic_robot():
+    """Each kind of geom where it belongs (the bodies keep the world's axes): the capsule's and the cylinder's
+    end centres, the sphere's centre, a box's 6 faces, an ellipsoid's 3 ellipses, the mesh's points as dots,
+    the sole's outline (4 edges) around its corners."""
+    from jaxanim.app._robot_draw import robot_shapes
+
+    clip = load_retarget(_with_geometry(_result()))
+    xpos = clip.body_positions[3]
+    s = robot_shapes(clip.geometry, xpos, clip.body_xmat[3])
+    up = np.array([0.0, 0.0, 1.0])
+    np.testing.assert_allclose(s.capsules, [[xpos[2], xpos[2] + 0.4 * up]], err_msg="field: capsules")
+    np.testing.assert_allclose(s.cylinders, [[xpos[2] - 0.4 * up, xpos[2]]], err_msg="field: cylinders")
+    assert s.capsule_radius.tolist() == [0.05] and s.cylinder_radius.tolist() == [0.04]
+    np.testing.assert_allclose(s.spheres, [xpos[1]], err_msg="field: spheres")
+    assert s.faces.shape == (6, 4, 3) and s.face_geoms.tolist() == [1] * 6
+    np.testing.assert_allclose(s.faces.reshape(-1, 3).min(axis=0), xpos[1] + [-0.08, -0.12, 0.15],
+                               err_msg="field: box faces")
+    np.testing.assert_allclose(s.dots, xpos[1] + [[0.05, 0, 0], [-0.05, 0, 0]], err_msg="field: mesh dots")
+    rings, sole = s.lines[:-4], s.lines[-4:]
+    assert len(rings) == 3 * 24
+    np.testing.assert_allclose(np.abs(rings.reshape(-1, 3) - xpos[1] - 0.6 * up).max(axis=0), [0.07, 0.08, 0.1],
+                               err_msg="field: ellipsoid")
+    np.testing.assert_allclose(sole[:, 1], np.roll(sole[:, 0], -1, axis=0), err_msg="field: the sole is closed")
+    corners = xpos[3] + clip.geometry.point_pos[2:]
+    assert sorted(map(tuple, sole[:, 0].round(12))) == sorted(map(tuple, corners.round(12))), "field: sole corners"
+    assert np.abs(sole[:, 0, 2]).max() < 1e-12, "the sole is on the ground"
+
+
+_MJ_FRAMES = 3
+
+
+def _mujoco_result(model, mujoco, robot) -> tuple[dict, np.ndarray, np.ndarray]:
+    """A result of ``_MJ_FRAMES`` random poses of ``model`` as MuJoCo's ``mj_kinematics`` places it (its geometry
+    from ``robot``: the Robot's fields as ``jaxanim retarget`` writes them), and MuJoCo's ``geom_xpos [T, G, 3]``,
+    ``geom_xmat [T, G, 3, 3]`` of the robot's geoms."""
+    rng = np.random.default_rng(3)
+    data = mujoco.MjData(model)
+    keep = [g for g in range(model.ngeom) if model.geom_bodyid[g] > 0 and model.geom_type[g] != 0]
+    xpos, xmat, gpos, gmat = [], [], [], []
+    for _ in range(_MJ_FRAMES):
+        data.qpos[:] = model.qpos0
+        data.qpos[7:] += rng.uniform(-0.5, 0.5, model.nq - 7)
+        data.qpos[:3] += rng.uniform(-0.3, 0.3, 3)
+        data.qpos[3:7] = rng.normal(size=4) / 4 + [1, 0, 0, 0]
+        data.qpos[3:7] /= np.linalg.norm(data.qpos[3:7])
+        mujoco.mj_kinematics(model, data)
+        xpos.append(data.xpos.copy())
+        xmat.append(data.xmat.reshape(-1, 3, 3).copy())
+        gpos.append(data.geom_xpos[keep].copy())
+        gmat.append(data.geom_xmat[keep].reshape(-1, 3, 3).copy())
+    d = _result(_MJ_FRAMES)
+    B = model.nbody
+    d.update({
+        "body_names": np.array(robot.body_names), "body_parents": np.array(robot.body_parents),
+        "body_positions": np.array(xpos), "body_xmat": np.array(xmat), "feet": np.array([robot.body_names[-1]]),
+        "contacts": np.ones((_MJ_FRAMES, 1), bool), "geom_body": np.array(robot.geom_bodies),
+        "geom_type": np.array(robot.geom_types), "point_body": np.array(robot.point_bodies),
+        **{k: np.asarray(getattr(robot, k)) for k in ("geom_size", "geom_pos", "geom_quat", "point_pos")},
+    })
+    assert d["body_positions"].shape[1] == B
+    return d, np.array(gpos), np.array(gmat)
+
+
+@pytest.mark.parametrize("key", ["humanoid", "g1"])
+def test_the_drawing_puts_the_geoms_where_mujoco_does(key):
+    """The shipped humanoid (capsules, boxes, spheres) and the G1 (spheres, cylinders) at random poses: what
+    the render draws (capsule and cylinder end centres, sphere centres, box faces), read from its artist, is
+    where MuJoCo's ``geom_xpos`` / ``geom_xmat`` put the geoms; a capsule is drawn as wide as it is."""
+    mujoco = pytest.importorskip("mujoco", reason="the reference is MuJoCo (jaxanim[robots])")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from jaxanim import robots
+    from jaxanim.app._render import _RetargetArtist
+    from jaxanim.app._robot_draw import pixels_per_metre
+
+    from .conftest import shared_data_dir
+
+    path = robots.default_robot_path() if key == "humanoid" else shared_data_dir() / "robots/unitree_g1/g1.xml"
+    model = mujoco.MjModel.from_xml_path(str(path))
+    robot = robots.load_robot(path)
+    data, gpos, gmat = _mujoco_result(model, mujoco, robot)
+    scene = retarget_scene(load_retarget(data))
+    fig = Figure(figsize=(2, 2), dpi=100)
+    FigureCanvasAgg(fig)
+    artist = _RetargetArtist(fig.add_subplot(1, 1, 1, projection="3d"), "t", scene, np.arange(_MJ_FRAMES),
+                             "fixed", 200)
+    drawn = []
+    update = artist.robot.update
+    artist.robot.update = lambda *a: drawn.append(update(*a)) or drawn[-1]
+    size = np.asarray(robot.geom_size)
+    for f in range(_MJ_FRAMES):
+        artist.update(f, 0.0)
+        s = drawn[-1]
+        for kind, ends, geoms in (("capsule", s.capsules, s.capsule_geoms), ("cylinder", s.cylinders, s.cylinder_geoms)):
+            half = gmat[f][geoms, :, 2] * size[geoms, 1:2]
+            expected = np.stack([gpos[f][geoms] - half, gpos[f][geoms] + half], axis=1)
+            np.testing.assert_allclose(ends, expected, atol=1e-9, err_msg=f"field: {kind} ends, frame {f}")
+        np.testing.assert_allclose(s.spheres, gpos[f][s.sphere_geoms], atol=1e-9, err_msg=f"field: spheres, frame {f}")
+        for g in np.unique(s.face_geoms):  # every corner of every face at (+-x, +-y, +-z) in the geom's frame
+            local = (s.faces[s.face_geoms == g].reshape(-1, 3) - gpos[f][g]) @ gmat[f][g]
+            np.testing.assert_allclose(np.abs(local), np.broadcast_to(size[g], local.shape), atol=1e-9,
+                                       err_msg=f"field: box {g} corners, frame {f}")
+            assert len(np.unique(np.sign(local).round(), axis=0)) == 8, f"box {g}: not all 8 corners"
+    assert len(drawn[-1].capsules) + len(drawn[-1].cylinders) + len(drawn[-1].spheres) > 0
+    if len(drawn[-1].capsules):  # as wide as the capsule in the view (its outline a little wider)
+        ppm = pixels_per_metre(artist.ax, scene.points[-1, 0])
+        fill = artist.robot.capsules[1].get_linewidths()
+        order = np.argsort(drawn[-1].capsules.mean(axis=1) @ _eye(artist.ax))
+        np.testing.assert_allclose(fill, 2 * drawn[-1].capsule_radius[order] * ppm * 72 / fig.dpi,
+                                   err_msg="field: capsule widths")
+
+
+def _eye(ax) -> np.ndarray:
+    e, a = np.radians(ax.elev), np.radians(ax.azim)
+    return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+def test_an_old_result_is_drawn_as_sticks():
+    """A result without the geometry keys (written before them) has no geometry; its robot is thick sticks."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from jaxanim.app._render import _RetargetArtist
+
+    clip = load_retarget(_result())
+    assert clip.geometry is None and clip.body_xmat is None
+    fig = Figure(figsize=(1, 1))
+    FigureCanvasAgg(fig)
+    artist = _RetargetArtist(fig.add_subplot(1, 1, 1, projection="3d"), "t", retarget_scene(clip), np.arange(_T),
+                             "follow", _SIZE)
+    artist.update(0, 0.0)
+    assert artist.robot is None and artist.sticks.get_linewidths()[0] == 3.5
+
+
 def _without(key):
     def edit(d):
         del d[key]
@@ -182,6 +363,33 @@ def _no_feet(d):
     del d["feet"]
 
 
+def _geometry(change):
+    def edit(d):
+        d.update(_with_geometry(d))
+        change(d)
+    return edit
+
+
+def _no_geom_pos(d):
+    del d["geom_pos"]
+
+
+def _cone(d):
+    d["geom_type"] = np.array(["cone", *d["geom_type"][1:]])
+
+
+def _on_the_world(d):
+    d["geom_body"] = np.array([0, *d["geom_body"][1:]])
+
+
+def _short_xmat(d):
+    d["body_xmat"] = d["body_xmat"][:-1]
+
+
+def _nan_size(d):
+    d["geom_size"][4, 1] = np.nan
+
+
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
@@ -194,9 +402,15 @@ def _no_feet(d):
         (_bad_parent, "key 'body_parents': entry 2 is 3: expected -1 (a root) or a parent index below 2"),
         (_flat_bodies, "key 'body_positions': expected shape (T, B, 3) = (T, 4, 3), got (10, 4, 2)"),
         (_no_feet, "key 'feet' is missing: 'contacts' needs it"),
+        (_geometry(_no_geom_pos), "key 'geom_pos' is missing: 'body_xmat' needs it (the robot's geometry is "),
+        (_geometry(_cone), "key 'geom_type': unknown geom types ['cone']; valid: ['sphere', 'capsule', "),
+        (_geometry(_on_the_world), "key 'geom_body': entry 0 is 0: expected a body index in [1, 4) (not the world)"),
+        (_geometry(_short_xmat), "key 'body_xmat': expected shape (T, B, 3, 3) = (10, 4, 3, 3), got (9, 4, 3, 3)"),
+        (_geometry(_nan_size), "key 'geom_size': not all finite (the first at index (4, 1))"),
     ],
     ids=["missing-body-positions", "missing-fps", "nan-source", "mismatched-T", "mismatched-qpos", "parents",
-         "shape", "contacts-without-feet"],
+         "shape", "contacts-without-feet", "geometry-incomplete", "geom-type", "geom-on-the-world", "xmat-shape",
+         "nan-geom-size"],
 )
 def test_bad_result_names_the_file_and_the_key(tmp_path, capsys, edit, message):
     data = _result()

@@ -39,10 +39,10 @@ ROMEO_MAP = {
         {"source": "LeftLeg", "target": "LKneePitchLink", "orientation_weight": 0.0},
         {"source": "RightLeg", "target": "RKneePitchLink", "orientation_weight": 0.0},
         {"source": "Chest", "target": "torso", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "LElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightForeArm", "target": "RElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "LeftHand", "target": "l_wrist", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightHand", "target": "r_wrist", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftForeArm", "target": "LElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "RElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "l_wrist", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "r_wrist", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
 
@@ -54,10 +54,10 @@ TALOS_MAP = {
         {"source": "LeftLeg", "target": "leg_left_4_link", "orientation_weight": 0.0},
         {"source": "RightLeg", "target": "leg_right_4_link", "orientation_weight": 0.0},
         {"source": "Chest", "target": "torso_2_link", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "arm_left_4_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightForeArm", "target": "arm_right_4_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "LeftHand", "target": "arm_left_7_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightHand", "target": "arm_right_7_link", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftForeArm", "target": "arm_left_4_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "arm_right_4_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "arm_left_7_link", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "arm_right_7_link", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
 
@@ -130,11 +130,11 @@ def test_urdf_mesh_collisions_resolve_through_package_paths():
     origin = link.find("collision/origin")
     assert origin is None or np.allclose(np.array(origin.get("xyz", "0 0 0").split(), float), 0.0)
     pos, radius = _body_points(robot, "leg_left_6_link")
-    assert 8 <= len(pos) <= 26 and np.all(radius == 0)
-    # MuJoCo stores mesh vertices in float32: 1e-6 m
-    for axis in range(3):
-        for pick in (np.min, np.max):
-            assert abs(pick(pos[:, axis]) - pick(vertices[:, axis])) < 1e-6, (axis, pick.__name__)
+    assert 4 <= len(pos) <= 9 and np.all(radius == 0)
+    # its underside: the extreme vertex along each downward direction (MuJoCo stores mesh vertices in float32)
+    for u in [(x, y, -1.0) for x in (-1, 0, 1) for y in (-1, 0, 1)]:
+        assert abs(np.max(pos @ u) - np.max(vertices @ u)) < 1e-6, u
+    assert abs(np.min(pos[:, 2]) - np.min(vertices[:, 2])) < 1e-6
     gap = np.min(np.linalg.norm(pos[:, None] - vertices[None], axis=-1), axis=1)  # each point is a vertex
     assert np.max(gap) < 1e-6
 
@@ -175,7 +175,8 @@ def test_package_path_from_ros_package_path_and_missing_meshes_warn_once(tmp_pat
     assert "2 collision mesh(es) skipped" in message and "gone.stl (not found)" in message
     assert "shin.dae (a .dae file, which MuJoCo does not read)" in message
     pos, _ = _body_points(robot, "foot")
-    np.testing.assert_allclose(pos[np.lexsort(pos.T)], (corners + [0.03, 0, 0])[np.lexsort(corners.T)], atol=1e-6)
+    bottom = corners[corners[:, 2] < -0.01] + [0.03, 0, 0]  # the underside of the box-shaped mesh
+    np.testing.assert_allclose(pos[np.lexsort(pos.T)], bottom[np.lexsort(bottom.T)], atol=1e-6)
     assert len(_body_points(robot, "base")[0]) == 8 and len(_body_points(robot, "shin")[0]) == 0
     monkeypatch.delenv("ROS_PACKAGE_PATH")
     with pytest.warns(UserWarning, match=r"3 collision mesh\(es\) skipped.*foot.stl \(not found\)"):
@@ -250,12 +251,22 @@ def test_cli_retargets_the_shared_urdf_as_it_is(tmp_path, capsys):
     assert not (tmp_path / "fixed.npz").exists()
 
 
-def test_a_mesh_footed_urdf_retargets():
-    """TALOS as its package ships it (mesh feet, no free joint) retargets with the README's thresholds."""
-    robot = _load_quiet(_package_robot("talos_data/robots/talos_reduced.urdf"))
+def test_a_mesh_footed_urdf_stands_on_its_meshes():
+    """TALOS as its package ships it (mesh feet, no free joint): the problem adds the free joint and no sole, and
+    each foot target stands at the height of its mesh's lowest vertex (the STL read here) above the ground."""
+    path = _package_robot("talos_data/robots/talos_reduced.urdf")
+    robot = _load_quiet(path)
     skel, walk = jaxanim.read_bvh(jaxanim.default_clip_path())
-    res = retargeting.retarget(skel, walk, robot, TALOS_MAP)
-    assert res.qpos.shape == (walk.num_frames, robot.nq + 7)
-    assert bool(res.success), res.result
-    s = jax.device_get(retargeting.summary(res.diagnostics))
-    _check_clip(s)
+    problem = retargeting.prepare_retarget(skel, walk, robot, TALOS_MAP)
+    assert problem.floating and problem.added_points == ()
+    assert retargeting.prepared_robot(robot, problem).jnt_names[0] == "root_joint"
+    link = next(e for e in ET.parse(path).getroot().iter("link") if e.get("name") == "leg_left_6_link")
+    mesh = link.find("collision/geometry/mesh")
+    stl = path.parents[3] / mesh.get("filename").removeprefix("package://example-robot-data/")
+    lowest = np.min(_stl_vertices(stl)[:, 2] * float(mesh.get("scale", "1 1 1").split()[2]))
+    fk = robots.forward_kinematics(robot, robot.qpos0)
+    R = np.asarray(fk.xmat)[robot.body_index("leg_left_6_link")]
+    assert np.allclose(R, np.eye(3), atol=1e-9)  # the foot is level in the zero pose: its height is its mesh's
+    # its sole is rounded (its underside's points lie within 9 mm of the lowest): the plane fitted through them
+    # tilts by a fraction of a degree, which moves the height by about a millimetre (1.2 mm)
+    np.testing.assert_allclose(np.asarray(problem.foot_height), [-lowest] * 2, atol=2e-3)

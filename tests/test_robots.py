@@ -585,3 +585,66 @@ def test_mesh_files_are_never_needed(tmp_path):
         robot = robots.load_robot(path)
     assert robot.body_names == ("world", "a", "b") and robot.jnt_types == ("free", "hinge")
     assert_close("body_mass", robot.body_mass[2], 1.0)
+
+
+# --- collision geometry ---------------------------------------------------------------------------------
+
+_GEOM_NAMES = {int(getattr(mujoco.mjtGeom, f"mjGEOM_{t.upper()}")): t
+               for t in ("sphere", "capsule", "box", "cylinder", "ellipsoid", "mesh")}
+
+
+def _assert_geoms_are_mujocos(robot, model) -> None:
+    keep = [g for g in range(model.ngeom) if model.geom_bodyid[g] > 0 and int(model.geom_type[g]) in _GEOM_NAMES]
+    assert robot.geom_bodies == tuple(int(b) for b in model.geom_bodyid[keep]), "field: geom_bodies"
+    assert robot.geom_types == tuple(_GEOM_NAMES[int(t)] for t in model.geom_type[keep]), "field: geom_types"
+    for field in ("geom_size", "geom_pos", "geom_quat"):
+        assert_close(field, getattr(robot, field), getattr(model, field)[keep])
+
+
+@pytest.mark.parametrize("key", ["humanoid", "g1", "cmu"])
+def test_geoms_are_mujocos(key):
+    """The Robot's geoms are MuJoCo's ``model.geom_*`` (the shipped humanoid's capsules, boxes and spheres,
+    the G1's spheres and cylinders, the CMU humanoid's capsules and ellipsoids; its floor plane, on the
+    world, left out)."""
+    path = robots.default_robot_path() if key == "humanoid" else shared_data_dir() / "robots" / MJCF[key]
+    robot, model = robots.load_robot(path), mujoco.MjModel.from_xml_path(str(path))
+    _assert_geoms_are_mujocos(robot, model)
+    assert len(robot.geom_bodies) == sum(1 for g in range(model.ngeom) if model.geom_bodyid[g] > 0)
+    kinds = {"humanoid": {"capsule", "box", "sphere"}, "g1": {"sphere", "cylinder"}, "cmu": {"capsule", "ellipsoid"}}
+    assert kinds[key] <= set(robot.geom_types), robot.geom_types
+    # the retargeting's robot edits keep them
+    floating = robots.with_floating_base(robot) if robot.jnt_types[0] != "free" else robot
+    more = robots.with_surface_points(floating, [1], [[0.0, 0.0, -0.1]])
+    for r in (floating, more):
+        assert (r.geom_bodies, r.geom_types) == (robot.geom_bodies, robot.geom_types)
+        assert_close("geom_quat", r.geom_quat, robot.geom_quat)
+
+
+def test_mesh_geoms_are_kept_and_planes_are_not(tiny):
+    """A mesh given by its vertices (no file) is a geom of type "mesh"; planes are left out; the tiny model's
+    box and sphere are MuJoCo's; a robot built without geoms has none."""
+    xml = """<mujoco><asset><mesh name="wedge" vertex="0 0 0  0.2 0 0  0 0.1 0  0 0 0.3"/></asset><worldbody>
+      <geom type="plane" size="1 1 0.1"/>
+      <body name="a" pos="0 0 1"><freejoint/><geom type="mesh" mesh="wedge" pos="0.1 0 0"/>
+        <geom type="cylinder" size="0.05 0.2" euler="0 90 0"/></body></worldbody></mujoco>"""
+    robot = robots.robot_from_mujoco(mujoco.MjModel.from_xml_string(xml))
+    assert robot.geom_types == ("mesh", "cylinder") and robot.geom_bodies == (1, 1)
+    _assert_geoms_are_mujocos(robot, mujoco.MjModel.from_xml_string(xml))
+    _assert_geoms_are_mujocos(tiny[0], tiny[1])
+    bare = robots.Robot(**{f.name: getattr(tiny[0], f.name) for f in dataclasses.fields(tiny[0])
+                           if not f.name.startswith("geom_")})  # the defaults: no geoms
+    assert (bare.geom_bodies, bare.geom_types) == ((), ())
+    assert (bare.geom_size.shape, bare.geom_pos.shape, bare.geom_quat.shape) == ((0, 3), (0, 3), (0, 4))
+
+
+def test_robot_checks_its_geom_fields(tiny):
+    robot = tiny[0]
+    G = len(robot.geom_bodies)
+    with pytest.raises(JaxanimError, match=re.escape(f"geom_quat: expected shape (geoms, 4) = ({G}, 4), got ({G}, 3)")):
+        dataclasses.replace(robot, geom_quat=robot.geom_quat[:, :3])
+    with pytest.raises(JaxanimError, match=r"geom_types: unknown geom types \['cone'\]; valid: \['sphere', "):
+        dataclasses.replace(robot, geom_types=("cone",) + robot.geom_types[1:])
+    with pytest.raises(JaxanimError, match=rf"geom_types: expected {G} entries \(one per geom in geom_bodies\)"):
+        dataclasses.replace(robot, geom_types=robot.geom_types[1:])
+    with pytest.raises(JaxanimError, match=r"geom_bodies: geom 0 is on body 0, expected 1 <= body < 7 \(not the world\)"):
+        dataclasses.replace(robot, geom_bodies=(0,) + robot.geom_bodies[1:])

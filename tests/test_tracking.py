@@ -377,4 +377,32 @@ def test_demo_tour(problem, result, tmp_path, capsys):
     assert f"mean joint error {float(np.asarray(result.joint_error[1:]).mean()):.3f} rad" in out
     skel, motion = jaxanim.read_bvh(out_dir / "demo_track.bvh")
     assert motion.num_frames == FRAMES and skel.num_joints == 21
+    _check_demo_retarget(out_dir, out)
+
+
+def _check_demo_retarget(out_dir, out: str) -> None:
+    """The demo's retarget step (the shipped walk onto the shipped humanoid): its diagnostics within the
+    README's foot thresholds, its .npz with the robot's geometry (finite, the humanoid's geoms), its picture."""
+    pytest.importorskip("mujoco", reason="the retarget step needs mujoco (jaxanim[robots])")
+    from jaxanim.app._retarget_clip import load_retarget
+
+    slide, depth = re.search(r"stance foot slide \(median\) ([0-9.]+) mm/s, penetration ([0-9.]+) mm", out).groups()
+    assert float(slide) <= 1.0 and float(depth) <= 1.0, out
+    for text in ("onto jaxanim_humanoid (36 qpos)", "): successful in", "joint-range violation", "matching error",
+                 "with compilation (and the preparation)", "ms warm", f"wrote {out_dir / 'demo_retarget.npz'}",
+                 f"wrote {out_dir / 'demo_retarget.png'} (frames 0, 40, 79, 119"):
+        assert text in out, text
+    assert (out_dir / "demo_retarget.png").read_bytes()[:4] == b"\x89PNG"
+    with np.load(out_dir / "demo_retarget.npz") as z:
+        T, B = z["body_positions"].shape[:2]
+        G = len(z["geom_type"])
+        assert (T, B, G) == (120, 31, 31) and z["body_xmat"].shape == (T, B, 3, 3)
+        shapes = {"geom_body": (G,), "geom_size": (G, 3), "geom_pos": (G, 3), "geom_quat": (G, 4),
+                  "point_pos": (len(z["point_body"]), 3)}
+        for key, shape in shapes.items():
+            assert z[key].shape == shape and np.isfinite(z[key]).all(), key
+        assert {"capsule", "box", "sphere"} == set(z["geom_type"].tolist())
+        np.testing.assert_allclose(np.einsum("tbij,tbkj->tbik", z["body_xmat"], z["body_xmat"]),
+                                   np.broadcast_to(np.eye(3), (T, B, 3, 3)), atol=1e-9, err_msg="field: body_xmat")
+    assert load_retarget(out_dir / "demo_retarget.npz").geometry is not None
 

@@ -239,6 +239,74 @@ def _demo_render(s: DemoState) -> None:
     s.rows.append(("render", f"wrote {out}: {what}, {info.frames} frames in {_duration(time.perf_counter() - t0)}"))
 
 
+#: The frames of the clip the retarget step's picture shows.
+_DEMO_RETARGET_FRAMES = 4
+
+
+def _retarget_picture(path: pathlib.Path, npz: pathlib.Path, frames: list[int]) -> None:
+    """A PNG of a retarget result at ``frames``, side by side: the robot from its collision geometry beside its
+    source, drawn as ``jaxanim render RESULT.npz`` draws each frame."""
+    from ._render import _DPI, _figure, _RetargetArtist
+    from ._retarget_clip import load_retarget, retarget_scene
+
+    clip = load_retarget(npz)
+    scene = retarget_scene(clip)
+    size = 320
+    fig = _figure(size * len(frames), size)
+    for i, f in enumerate(frames):
+        artist = _RetargetArtist(fig.add_subplot(1, len(frames), i + 1, projection="3d"), f"frame {f}", scene,
+                                 np.array([f]), "follow", size)
+        artist.update(f, f * clip.frame_time)
+        if i:
+            artist.ax.get_legend().remove()  # one legend, in the first panel
+    fig.savefig(path, dpi=_DPI, format="png")
+
+
+def _demo_retarget(s: DemoState) -> None:
+    """The shipped walk retargeted onto the shipped humanoid with the shipped map: ``jaxanim retarget``'s solve
+    and .npz (prepare_retarget, solve_retarget, retarget_arrays), and a picture of a few frames."""
+    try:
+        import mujoco  # noqa: F401  (optional: the robots extra reads the robot)
+    except ImportError:
+        s.rows.append(("retarget", "skipped: mujoco is not installed (pip install 'jaxanim[robots]')"))
+        return
+    from .. import retargeting, robots
+    from ._retarget_clip import retarget_arrays
+
+    skel, motion = s.clip.skeleton, s.clip.motion
+    robot_path, map_path = robots.default_robot_path(), retargeting.default_mapping_path()
+    robot = robots.load_robot(robot_path, dtype=s.dtype)
+    t0 = time.perf_counter()
+    problem = retargeting.prepare_retarget(skel, motion, robot, map_path)
+    options = retargeting.RetargetOptions()
+    res = jax.block_until_ready(retargeting.solve_retarget(robot, problem, options))
+    cold = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    jax.block_until_ready(retargeting.solve_retarget(robot, problem, options).qpos)
+    warm = time.perf_counter() - t0
+    robot = retargeting.prepared_robot(robot, problem)  # the free joint and soles the problem was prepared with
+    out = s.out_dir / "demo_retarget.npz"
+    _save_npz(out, retarget_arrays(skel, motion, robot, problem, res, robot_path=robot_path,
+                                   source=s.clip.path, map_path=map_path))
+    d = retargeting.summary(res.diagnostics, position_weight=problem.position_weight)
+    f = motion.num_frames
+    status = "successful" if bool(res.success) else str(res.result)
+    s.rows.append(("retarget", f"the clip onto {robot.name} ({robot.nq} qpos) with the shipped map, one least-squares "
+                               f"problem over all {f} frames (retargeting.prepare_retarget, solve_retarget): {status} "
+                               f"in {int(res.num_steps)} iterations"))
+    s.rows.append(("", f"stance foot slide (median) {1e3 * d['foot_slide']:.2f} mm/s, penetration "
+                       f"{1e3 * d['penetration']:.2f} mm, joint-range violation {d['range_violation']:.2g}, "
+                       f"matching error {1e3 * d['matching_error']:.1f} mm"))
+    s.rows.append(("", f"{_duration(cold)} with compilation (and the preparation), {_ms(warm)} warm = "
+                       f"{warm / f * 1e3:.2f} ms per frame; wrote {out}"))
+    if _has_matplotlib(s, "retarget"):
+        png = s.out_dir / "demo_retarget.png"
+        frames = np.linspace(0, f - 1, _DEMO_RETARGET_FRAMES).round().astype(int).tolist()
+        _retarget_picture(png, out, frames)
+        s.rows.append(("", f"wrote {png} (frames {', '.join(map(str, frames))}: the robot from its collision "
+                           "geometry beside its source)"))
+
+
 #: The demo, in order: ``(name, step)``; a step reads and extends the :class:`DemoState`.
 DEMO_STEPS: list[tuple[str, Callable[[DemoState], None]]] = [
     ("load the shipped clip", _demo_load),
@@ -249,6 +317,7 @@ DEMO_STEPS: list[tuple[str, Callable[[DemoState], None]]] = [
     ("track the clip without root force", _demo_track),
     ("skin the clip (LBS and DQS)", _demo_skin),
     ("render the clip beside its simulation", _demo_render),
+    ("retarget the clip onto the shipped humanoid", _demo_retarget),
 ]
 
 

@@ -22,8 +22,10 @@ through pyplot, and written by matplotlib's animation writers: Pillow for ``.gif
   ``--mesh`` adds the capsule skin of the skeleton (:mod:`jaxanim.skinning`: ``capsule_mesh``,
   ``heuristic_weights``, ``skin_motion`` with LBS), shaded by a fixed light.
 * **Retarget results.** A ``.npz`` from ``jaxanim retarget`` (:mod:`._retarget_clip`) is one panel in
-  the robot's frame (Z up, ground at z = 0, no FK): the robot's bodies as orange sticks beside its
-  source skeleton in blue, shifted along +Y just clear of it, a foot in stance marked green, a legend
+  the robot's frame (Z up, ground at z = 0, no FK): the robot in orange, drawn from its collision
+  geometry (:mod:`._robot_draw`: capsules, boxes, spheres, ..., over thin sticks between its body
+  origins; a result without the geometry keys as thick sticks), beside its source skeleton in blue,
+  shifted along +Y just clear of it, a foot in stance marked green, a legend
   naming both files, seen in 3/4 from the robot's front right (:func:`render_retarget`, which
   ``jaxanim retarget --render`` calls too). ``--fps``, ``--frames``, ``--camera`` and ``--size`` work
   as for clips; ``--compare`` and ``--mesh`` do not apply.
@@ -54,6 +56,7 @@ from ._retarget_clip import (
     load_retarget,
     retarget_scene,
 )
+from ._robot_draw import RobotArtist
 from ._simulate import _check_writable
 
 __all__ = ["RenderInfo", "add_render_parser", "render_clips", "render_retarget"]
@@ -355,7 +358,10 @@ class _RetargetArtist(_Stage):
         self.s = scene
         self.pairs = np.concatenate([scene.sticks, scene.bones])
         super().__init__(ax, title, scene.points[shown], scene.track[shown], 0.0, camera, size, _RETARGET_VIEW)
-        self.sticks = Line3DCollection(_ONE_SEGMENT, colors=_ROBOT_COLOR, linewidths=3.5, zorder=3)
+        # with its geometry, the robot over thin sticks (robots whose files keep little geometry still read)
+        self.robot = None if scene.geometry is None else RobotArtist(ax, scene.geometry, _ROBOT_COLOR, zorder=3)
+        self.sticks = Line3DCollection(_ONE_SEGMENT, colors=_ROBOT_COLOR, linewidths=3.5 if self.robot is None else 2.0,
+                                       zorder=2.9 if self.robot else 3)
         self.bones = Line3DCollection(_ONE_SEGMENT, colors=_SOURCE_COLOR, linewidths=2.0, zorder=3)
         ax.add_collection3d(self.sticks)
         ax.add_collection3d(self.bones)
@@ -375,7 +381,10 @@ class _RetargetArtist(_Stage):
         self._move(pts, self.pairs, s.track[f])
         self.sticks.set_segments(np.stack([pts[s.sticks[:, 0]], pts[s.sticks[:, 1]]], axis=1))
         self.bones.set_segments(np.stack([pts[s.bones[:, 0]], pts[s.bones[:, 1]]], axis=1))
-        self.dots.set_data_3d(pts[:, 0], pts[:, 1], pts[:, 2])
+        if self.robot is not None:  # body 0, the world, carries no geom
+            self.robot.update(np.concatenate([np.zeros((1, 3)), pts[: s.num_robot]]), s.body_xmat[f], pts[0])
+        dots = pts[s.num_robot:] if self.robot is not None else pts  # the body origins only as sticks
+        self.dots.set_data_3d(dots[:, 0], dots[:, 1], dots[:, 2])
         down = s.feet[(s.feet >= 0) & s.contacts[f]] if s.contacts is not None else s.feet[:0]
         self.stance.set_data_3d(pts[down, 0], pts[down, 1], pts[down, 2])
         self.label.set_text(f"t = {t:.2f} s   frame {f}/{len(s.points) - 1}")
@@ -555,9 +564,10 @@ def render_retarget(
     offset: float | None = None,
     ui: _UI | None = None,
 ) -> RenderInfo:
-    """Animate a retarget result, the robot's bodies as sticks beside its source skeleton, into a GIF or MP4.
+    """Animate a retarget result, the robot from its collision geometry beside its source skeleton, into a GIF or MP4.
 
-    One panel, the robot's frame (Z up, ground at z = 0): the robot in orange, the source in blue
+    One panel, the robot's frame (Z up, ground at z = 0): the robot in orange (its geoms; sticks between
+    its body origins where the result has no geometry keys), the source in blue
     shifted along +Y (:func:`._retarget_clip.source_shift`), a foot that stands (``contacts``) marked
     green, a legend naming the robot and the source files, the result's file name as the title.
 
@@ -645,7 +655,7 @@ def _cmd_render_retarget(args: argparse.Namespace, frames, ui: _UI) -> int:
     for flag, given in (("--compare", args.compare is not None), ("--mesh", args.mesh)):
         if given:
             raise JaxanimError(f"{flag}: not with a retarget result ({args.file}), which is drawn as the robot's "
-                               "sticks beside its source's skeleton")
+                               "geometry beside its source's skeleton")
     ui.progress(f"reading {args.file}")
     t0 = time.perf_counter()
     clip = load_retarget(args.file)
@@ -668,7 +678,7 @@ def add_render_parser(sub, common) -> None:
                                    "camera follows the root (--camera follow, the default: a fixed-size view centred "
                                    "on the root, the ground grid sliding past) or is fixed on the bounding box of the "
                                    "whole clip (--camera fixed). A retarget result (RESULT.npz, from jaxanim "
-                                   "retarget) is drawn as the robot's bodies as sticks beside its source skeleton, "
+                                   "retarget) is drawn as the robot's collision geometry beside its source skeleton, "
                                    "in the robot's frame (Z up).")
     p.add_argument("file", nargs="?", metavar="FILE.bvh|RESULT.npz",
                    help="a BVH file, or a retarget result .npz (default: the shipped walk clip)")

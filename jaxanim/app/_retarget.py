@@ -20,7 +20,7 @@ _LONG = 300
 def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     from .. import retargeting, robots  # noqa: PLC0415 (mujoco is an optional extra)
     from ..skeleton import read_clip  # noqa: PLC0415
-    from ..kinematics import forward_kinematics  # noqa: PLC0415
+    from ._retarget_clip import retarget_arrays  # noqa: PLC0415
 
     out = pathlib.Path(args.out)
     if out.suffix != ".npz":
@@ -66,20 +66,9 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     if not np.all(np.isfinite(qpos)):
         raise JaxanimError(f"the solve gave non-finite values ({res.result}); nothing written")
     s = retargeting.summary(res.diagnostics, position_weight=problem.position_weight)
-    fk = jax.vmap(lambda q: robots.forward_kinematics(robot, q).xpos)(res.qpos)
-    src = jax.vmap(lambda r, t: forward_kinematics(skeleton, r, t).positions)(motion.rotations, motion.translations)
-    d = res.diagnostics
-    arrays = {
-        "qpos": qpos, "fps": np.asarray(float(res.fps)), "joint_names": np.asarray(robot.jnt_names),
-        "body_names": np.asarray(robot.body_names), "body_parents": np.asarray(robot.body_parents),
-        "body_positions": np.asarray(fk), "source_positions": np.asarray(problem.in_robot_frame(src)), "source_names": np.asarray(skeleton.names),
-        "source_parents": np.asarray(skeleton.parents), "feet": np.asarray([problem.names[k] for k in problem.feet]),
-        "targets": np.asarray(problem.names),
-        **{f: np.asarray(getattr(d, f)) for f in d.__dataclass_fields__ if f != "mask"},  # the diagnostics
-        "status": np.asarray(str(res.result) if not bool(res.success) else "successful"),
-        "success": np.asarray(bool(res.success)), "robot": np.asarray(str(robot_path)),
-        "source": np.asarray(str(source)), "map": np.asarray(str(map_path)),
-    }
+    # FK of every frame (positions, rotations), the source in the robot's frame, the geometry, the diagnostics
+    arrays = retarget_arrays(skeleton, motion, robot, problem, res, robot_path=robot_path, source=source,
+                             map_path=map_path)
     bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
     if bad:
         raise JaxanimError(f"non-finite values in {bad}; nothing written")

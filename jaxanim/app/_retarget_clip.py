@@ -13,7 +13,16 @@ The .npz layout (every position in the robot's world frame: Z up, metres, ground
   frame);
 * optional: ``qpos [T, nq]``, ``joint_names``, ``feet [F]`` with ``contacts [T, F]`` (the source's
   stance frames per foot), ``robot``, ``source``, ``map`` (file paths), per-frame diagnostics
-  (ignored here).
+  (ignored here);
+* optional, all or none (the robot's collision geometry, :class:`RobotGeometry`; without them the
+  robot is drawn as sticks between its body origins): ``body_xmat [T, B, 3, 3]`` (MuJoCo ``xmat``:
+  body -> world rotations), the geoms ``geom_body [G]``, ``geom_type [G]`` (``"sphere"``,
+  ``"capsule"``, ``"box"``, ``"cylinder"``, ``"ellipsoid"``, ``"mesh"``), ``geom_size [G, 3]``,
+  ``geom_pos [G, 3]``, ``geom_quat [G, 4]`` (MuJoCo's fields, in the body's frame, wxyz), and the
+  surface points ``point_body [P]``, ``point_pos [P, 3]`` (the robot's ``point_pos`` as retargeting
+  prepared it: a mesh's extreme vertices, and the soles it gave feet without geometry).
+
+:func:`retarget_arrays` builds these arrays from a solve, for ``jaxanim retarget`` and ``jaxanim demo``.
 
 :func:`retarget_scene` lays the two out as one point set for drawing: the robot's bodies (not the
 world body, nor the sticks to it), and the source skeleton beside it, shifted along world +Y by
@@ -24,6 +33,7 @@ or MP4, and :func:`._view.build_viewer` into the browser.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import pathlib
@@ -35,11 +45,38 @@ import numpy as np
 
 from .._errors import JaxanimError
 
-__all__ = ["RetargetClip", "RetargetScene", "is_retarget_file", "load_retarget", "retarget_scene", "source_shift"]
+__all__ = ["RetargetClip", "RetargetScene", "RobotGeometry", "is_retarget_file", "load_retarget", "retarget_arrays",
+           "retarget_scene", "source_shift"]
 
 _REQUIRED = ("fps", "body_names", "body_parents", "body_positions", "source_names", "source_parents",
              "source_positions")
-_OPTIONAL = ("qpos", "joint_names", "feet", "contacts", "robot", "source", "map")
+#: The robot's geometry: all of these or none.
+_GEOMETRY = ("body_xmat", "geom_body", "geom_type", "geom_size", "geom_pos", "geom_quat", "point_body", "point_pos")
+_OPTIONAL = ("qpos", "joint_names", "feet", "contacts", "robot", "source", "map", *_GEOMETRY)
+#: The geom types of a result (``jaxanim.robots.Robot``'s ``geom_types``).
+GEOM_TYPES = ("sphere", "capsule", "box", "cylinder", "ellipsoid", "mesh")
+
+
+@dataclasses.dataclass
+class RobotGeometry:
+    """A robot's collision geometry, as a retarget result holds it (MuJoCo's fields; body frames).
+
+    Attributes:
+        geom_body: ``[G]`` the body of each geom (never the world).
+        geom_type: ``G`` types, each one of :data:`GEOM_TYPES`.
+        geom_size: ``[G, 3]`` MuJoCo's ``geom_size``, m (sphere: radius; capsule, cylinder: radius and half
+            length along the geom's z; box, ellipsoid: half sizes).
+        geom_pos, geom_quat: ``[G, 3]``, ``[G, 4]`` the geom's frame in its body's frame (m; wxyz).
+        point_body, point_pos: ``[P]``, ``[P, 3]`` the robot's surface points in their bodies' frames (m).
+    """
+
+    geom_body: np.ndarray
+    geom_type: tuple[str, ...]
+    geom_size: np.ndarray
+    geom_pos: np.ndarray
+    geom_quat: np.ndarray
+    point_body: np.ndarray
+    point_pos: np.ndarray
 
 
 @dataclasses.dataclass
@@ -57,6 +94,8 @@ class RetargetClip:
         feet: ``F`` foot names (empty without contacts).
         contacts: ``[T, F]`` the source's stance frames per foot.
         robot, source: the robot file and the source BVH named in the result ("" where absent).
+        geometry: the robot's collision geometry (``None`` in a result without it: sticks are drawn).
+        body_xmat: ``[T, B, 3, 3]`` body -> world rotations (``None`` without ``geometry``).
     """
 
     label: str
@@ -72,6 +111,8 @@ class RetargetClip:
     contacts: np.ndarray | None = None
     robot: str = ""
     source: str = ""
+    geometry: RobotGeometry | None = None
+    body_xmat: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -218,6 +259,53 @@ def _positions(label: str, key: str, a: np.ndarray, T: int | None, n: int, what:
     return p
 
 
+def _finite(label: str, key: str, a: np.ndarray, shape: tuple, what: str) -> np.ndarray:
+    _numbers(label, key, a)
+    _shape(label, key, a, shape, what)
+    a = a.astype(np.float64)
+    if not np.isfinite(a).all():
+        raise JaxanimError(f"{label}: key {key!r}: not all finite (the first at index "
+                           f"{tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])}); cannot draw it")
+    return a
+
+
+def _bodies(label: str, key: str, a: np.ndarray, B: int, what: str) -> np.ndarray:
+    _numbers(label, key, a)
+    _shape(label, key, a, (None,), what)
+    if a.dtype == np.bool_ or (np.issubdtype(a.dtype, np.floating) and not np.all(a == np.round(a))):
+        raise JaxanimError(f"{label}: key {key!r}: expected integer body indices, got dtype {a.dtype}")
+    b = a.astype(np.int64)
+    bad = [i for i, x in enumerate(b) if not 1 <= x < B]
+    if bad:
+        raise JaxanimError(f"{label}: key {key!r}: entry {bad[0]} is {b[bad[0]]}: expected a body index in [1, {B}) "
+                           "(not the world)")
+    return b
+
+
+def _geometry(label: str, data: dict, T: int, B: int) -> tuple[RobotGeometry, np.ndarray] | None:
+    """The robot's geometry and ``body_xmat``, checked, or ``None`` where the result has none."""
+    have = [k for k in _GEOMETRY if k in data]
+    if not have:
+        return None
+    lack = [k for k in _GEOMETRY if k not in data]
+    if lack:
+        raise JaxanimError(f"{label}: key {lack[0]!r} is missing: {have[0]!r} needs it (the robot's geometry is "
+                           f"{', '.join(_GEOMETRY)}, all or none)")
+    xmat = _finite(label, "body_xmat", data["body_xmat"], (T, B, 3, 3), f"(T, B, 3, 3) = ({T}, {B}, 3, 3)")
+    body = _bodies(label, "geom_body", data["geom_body"], B, "(G,)")
+    G = len(body)
+    types = _strings(label, "geom_type", data["geom_type"], G, f"(G,) = ({G},)")
+    bad = sorted({t for t in types if t not in GEOM_TYPES})
+    if bad:
+        raise JaxanimError(f"{label}: key 'geom_type': unknown geom types {bad}; valid: {list(GEOM_TYPES)}")
+    size, pos, quat = (_finite(label, k, data[k], (G, n), f"(G, {n}) = ({G}, {n})")
+                       for k, n in (("geom_size", 3), ("geom_pos", 3), ("geom_quat", 4)))
+    point_body = _bodies(label, "point_body", data["point_body"], B, "(P,)")
+    P = len(point_body)
+    point_pos = _finite(label, "point_pos", data["point_pos"], (P, 3), f"(P, 3) = ({P}, 3)")
+    return RobotGeometry(body, types, size, pos, quat, point_body, point_pos), xmat
+
+
 def load_retarget(npz_path_or_mapping, *, label: str | None = None) -> RetargetClip:
     """Read and check a retarget result.
 
@@ -285,10 +373,11 @@ def load_retarget(npz_path_or_mapping, *, label: str | None = None) -> RetargetC
         if not np.isin(c, (0, 1)).all():
             raise JaxanimError(f"{label}: key 'contacts': expected booleans (0 or 1)")
         contacts = c.astype(bool)
+    geometry, body_xmat = _geometry(label, data, T, B) or (None, None)
     return RetargetClip(label, path, float(fps.reshape(-1)[0]), body_names, body_parents, body_positions,
                         source_names, source_parents, source_positions, feet, contacts,
                         _scalar_string(label, "robot", data.get("robot")),
-                        _scalar_string(label, "source", data.get("source")))
+                        _scalar_string(label, "source", data.get("source")), geometry, body_xmat)
 
 
 def source_shift(clip: RetargetClip, shift: float | None = None) -> float:
@@ -329,6 +418,8 @@ class RetargetScene:
         contacts: ``[T, F]`` (``None`` without feet).
         shift: the source's shift along +Y, m.
         robot_label, source_label: the legend's words.
+        geometry: the robot's collision geometry (``None``: drawn as sticks).
+        body_xmat: ``[T, B, 3, 3]`` body -> world rotations (with ``geometry``).
     """
 
     points: np.ndarray
@@ -341,6 +432,8 @@ class RetargetScene:
     shift: float
     robot_label: str
     source_label: str
+    geometry: RobotGeometry | None = None
+    body_xmat: np.ndarray | None = None
 
 
 def retarget_scene(clip: RetargetClip, shift: float | None = None) -> RetargetScene:
@@ -353,4 +446,62 @@ def retarget_scene(clip: RetargetClip, shift: float | None = None) -> RetargetSc
     feet = np.array([-1 if w == "" else (i - 1 if w == "robot" else R + i) for w, i in clip.foot_points()], np.int64)
     source_label = f"source: {clip.source_name}" + (f" (+{shift:.2f} m Y)" if shift else "")
     return RetargetScene(points, R, clip.robot_sticks() - 1, clip.source_bones() + R, track, feet, clip.contacts,
-                         shift, f"robot: {clip.robot_name}", source_label)
+                         shift, f"robot: {clip.robot_name}", source_label, clip.geometry, clip.body_xmat)
+
+
+# ------------------------------------------------------------------------------------------------
+# Writing
+# ------------------------------------------------------------------------------------------------
+
+
+@functools.cache
+def _result_fk():
+    """One compiled program (op by op, the FK of every frame compiled each of its operations: 4.8 s against
+    0.9 s): the robot's FK of every frame, and the source's joints in the robot's frame."""
+    import jax  # noqa: PLC0415 (the reader above needs no JAX)
+
+    from .. import robots  # noqa: PLC0415
+    from ..kinematics import forward_kinematics  # noqa: PLC0415
+
+    def fk(robot, qpos, skeleton, motion, problem):
+        body = jax.vmap(lambda q: robots.forward_kinematics(robot, q))(qpos)
+        src = jax.vmap(lambda r, t: forward_kinematics(skeleton, r, t).positions)(motion.rotations, motion.translations)
+        return body, problem.in_robot_frame(src)
+
+    return jax.jit(fk)
+
+
+def retarget_arrays(skeleton, motion, robot, problem, result, *, robot_path="", source="",
+                    map_path="") -> dict[str, np.ndarray]:
+    """The arrays of a retarget result .npz (the layout in the module docstring), from a solve.
+
+    Args:
+        skeleton, motion: the source clip.
+        robot: the robot as the problem was prepared on it (``retargeting.prepared_robot``): its ``qpos``
+            layout, geoms and surface points (the soles added) are the result's.
+        problem: the ``retargeting.RetargetProblem``.
+        result: the ``retargeting.RetargetResult`` of ``retargeting.solve_retarget(robot, problem)``.
+        robot_path, source, map_path: the files, recorded as they are.
+
+    Returns:
+        ``{key: numpy array}``, for ``np.savez``: FK of every frame (``body_positions``, ``body_xmat``), the
+        source in the robot's frame, the robot's geometry, the diagnostics and the status.
+    """
+    fk, src = _result_fk()(robot, result.qpos, skeleton, motion, problem)
+    d = result.diagnostics
+    success = bool(result.success)
+    return {
+        "qpos": np.asarray(result.qpos), "fps": np.asarray(float(result.fps)), "joint_names": np.asarray(robot.jnt_names),
+        "body_names": np.asarray(robot.body_names), "body_parents": np.asarray(robot.body_parents),
+        "body_positions": np.asarray(fk.xpos), "body_xmat": np.asarray(fk.xmat),
+        "source_positions": np.asarray(src), "source_names": np.asarray(skeleton.names),
+        "source_parents": np.asarray(skeleton.parents), "feet": np.asarray([problem.names[k] for k in problem.feet]),
+        "targets": np.asarray(problem.names),
+        "geom_body": np.asarray(robot.geom_bodies, np.int64).reshape(-1),
+        "geom_type": np.asarray(robot.geom_types, dtype=str).reshape(-1),
+        **{k: np.asarray(getattr(robot, k)) for k in ("geom_size", "geom_pos", "geom_quat", "point_pos")},
+        "point_body": np.asarray(robot.point_bodies, np.int64).reshape(-1),
+        **{f: np.asarray(getattr(d, f)) for f in d.__dataclass_fields__ if f != "mask"},  # the diagnostics
+        "status": np.asarray("successful" if success else str(result.result)), "success": np.asarray(success),
+        "robot": np.asarray(str(robot_path)), "source": np.asarray(str(source)), "map": np.asarray(str(map_path)),
+    }

@@ -10,7 +10,8 @@ A URDF keeps its ``<collision>`` geometry (what retargeting keeps on the ground)
 (``package://NAME/...`` against the URDF's parent folders named ``NAME`` and the folders of
 ``ROS_PACKAGE_PATH``, a relative path against the URDF's folder) and MuJoCo reads its format (STL,
 OBJ); each mesh whose file is missing or unreadable is skipped, all of them named in one warning.
-A mesh's surface points are its support points along 26 directions (its extreme vertices).
+A mesh's surface points are its extreme vertices along the 9 downward directions of its body's frame (its underside:
+the sole, where the body is a foot).
 
 URDF import (MuJoCo's): every link becomes a body (``fusestatic="false"``, so links behind fixed
 joints, such as sole or sensor frames, stay bodies), named after the link; each ``revolute`` /
@@ -33,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import JaxanimError
-from ._robot import JOINT_TYPES, Robot, unbounded_range
+from ._robot import GEOM_TYPES, JOINT_TYPES, Robot, unbounded_range
 
 _INSTALL = "pip install 'jaxanim[robots]'"
 #: The bound MuJoCo's compiler is given when a moving body has no mass (a kinematics-only URDF):
@@ -260,14 +261,15 @@ def _names(model, obj, n: int) -> tuple[str, ...]:
     return tuple(mujoco.mj_id2name(model, obj, i) or "" for i in range(n))
 
 
-#: The 26 directions (the cube's faces, edges and corners) along which a mesh's extreme vertices stand for it.
-_DIRECTIONS = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)],
-                       np.float64)
+#: The 9 downward directions (the cube's bottom face, its edges and corners) along which a mesh's extreme vertices
+#: stand for it: its underside in its body's frame, the sole of a foot (all the surface points are for: the ground,
+#: the sole's plane), which points around an ankle would tilt.
+_DIRECTIONS = np.array([(x, y, -1) for x in (-1, 0, 1) for y in (-1, 0, 1)], np.float64)
 
 
 def _surface_points(model) -> tuple[tuple[int, ...], np.ndarray, np.ndarray]:
     """``(bodies, points [P, 3], radii [P])``: each geom's points in its body's frame (see
-    :class:`Robot`'s ``point_pos``). A mesh gives its extreme vertices along 26 directions; planes and height fields give none."""
+    :class:`Robot`'s ``point_pos``). A mesh gives its extreme vertices along the 9 downward directions (its underside); planes and height fields give none."""
     mujoco = _import_mujoco()
     G = mujoco.mjtGeom
     bodies, points, radii = [], [], []
@@ -296,13 +298,23 @@ def _surface_points(model) -> tuple[tuple[int, ...], np.ndarray, np.ndarray]:
         R = np.zeros(9)
         mujoco.mju_quat2Mat(R, np.array(model.geom_quat[g], np.float64))
         pts = local @ R.reshape(3, 3).T + np.array(model.geom_pos[g], np.float64)
-        if t == G.mjGEOM_MESH:  # its extreme vertices along the directions, in the body's frame
+        if t == G.mjGEOM_MESH:  # its underside: the extreme vertices along the downward directions, body frame
             pts = pts[np.unique(np.argmax(pts @ _DIRECTIONS.T, axis=0))]
         bodies += [b] * len(pts)
         points.append(pts)
         radii += [r] * len(pts)
     pos = np.concatenate(points) if points else np.zeros((0, 3))
     return tuple(bodies), pos, np.asarray(radii, np.float64)
+
+
+def _geoms(model) -> tuple[tuple[int, ...], tuple[str, ...], np.ndarray]:
+    """``(bodies, types, index [G])``: the geoms a :class:`Robot` keeps (:data:`GEOM_TYPES`, not on the world),
+    as MuJoCo's indices into ``model.geom_*``."""
+    mujoco = _import_mujoco()
+    kinds = {int(getattr(mujoco.mjtGeom, f"mjGEOM_{t.upper()}")): t for t in GEOM_TYPES}
+    keep = [g for g in range(model.ngeom) if int(model.geom_bodyid[g]) > 0 and int(model.geom_type[g]) in kinds]
+    return (tuple(int(model.geom_bodyid[g]) for g in keep), tuple(kinds[int(model.geom_type[g])] for g in keep),
+            np.asarray(keep, np.int64))
 
 
 def robot_from_mujoco(model, *, dtype=None) -> Robot:
@@ -328,6 +340,8 @@ def robot_from_mujoco(model, *, dtype=None) -> Robot:
     parents[0] = -1
     name = bytes(model.names).split(b"\0", 1)[0].decode()  # the model's name opens the names buffer
     point_bodies, point_pos, point_radius = _surface_points(model)
+    geom_bodies, geom_types, geoms = _geoms(model)
+    G = len(geoms)
     return Robot(
         name=name,
         body_names=_names(model, mujoco.mjtObj.mjOBJ_BODY, B),
@@ -356,4 +370,9 @@ def robot_from_mujoco(model, *, dtype=None) -> Robot:
         point_bodies=point_bodies,
         point_pos=arr(point_pos, (len(point_bodies), 3)),
         point_radius=arr(point_radius, (len(point_bodies),)),
+        geom_bodies=geom_bodies,
+        geom_types=geom_types,
+        geom_size=arr(np.asarray(model.geom_size).reshape(-1, 3)[geoms], (G, 3)),
+        geom_pos=arr(np.asarray(model.geom_pos).reshape(-1, 3)[geoms], (G, 3)),
+        geom_quat=arr(np.asarray(model.geom_quat).reshape(-1, 4)[geoms], (G, 4)),
     )

@@ -38,6 +38,8 @@ from .._types import Array, Float
 JOINT_TYPES = ("free", "ball", "slide", "hinge")  # MuJoCo's mjtJoint order: mjJNT_FREE = 0, ...
 JOINT_NQ = {"free": 7, "ball": 4, "slide": 1, "hinge": 1}
 JOINT_NV = {"free": 6, "ball": 3, "slide": 1, "hinge": 1}
+#: The geom types a :class:`Robot` keeps (MuJoCo's names; planes and height fields are not kept).
+GEOM_TYPES = ("sphere", "capsule", "box", "cylinder", "ellipsoid", "mesh")
 
 
 def _unknown(kind: str, name, valid: tuple[str, ...]) -> JaxanimError:
@@ -89,6 +91,15 @@ def _validate_structure(r: Robot) -> None:
     for s, b in enumerate(r.site_bodies):
         if not 0 <= b < B:
             raise JaxanimError(f"site_bodies: site {s} ({r.site_names[s]!r}) is on body {b}, expected 0 <= body < {B}")
+    G = len(r.geom_bodies)
+    if len(r.geom_types) != G:
+        raise JaxanimError(f"geom_types: expected {G} entries (one per geom in geom_bodies), got {len(r.geom_types)}")
+    bad = sorted({t for t in r.geom_types if t not in GEOM_TYPES})
+    if bad:
+        raise JaxanimError(f"geom_types: unknown geom types {bad}; valid: {list(GEOM_TYPES)}")
+    for g, b in enumerate(r.geom_bodies):
+        if not 1 <= b < B:
+            raise JaxanimError(f"geom_bodies: geom {g} is on body {b}, expected 1 <= body < {B} (not the world)")
 
 
 class Robot(eqx.Module):
@@ -125,6 +136,16 @@ class Robot(eqx.Module):
             axes. A body's lowest surface point is ``min(z(point) - point_radius)`` over its points:
             what the retargeting keeps on and above the ground.
         point_radius: ``[points]`` the radius around each point (sphere, capsule; 0 for corners).
+        geom_bodies: ``[geoms]`` the body of each collision geom (static; empty: no geometry). The geoms
+            are MuJoCo's (``model.geom_*``), in its order, but those on the world and the planes and
+            height fields.
+        geom_types: ``[geoms]`` ``"sphere"``, ``"capsule"``, ``"box"``, ``"cylinder"``, ``"ellipsoid"`` or
+            ``"mesh"`` (:data:`GEOM_TYPES`). Static.
+        geom_size: ``[geoms, 3]`` MuJoCo's ``geom_size`` (m): a sphere's radius; a capsule's or a
+            cylinder's radius and half length (along the geom's z); a box's and an ellipsoid's
+            half sizes; a mesh's, what MuJoCo's compiler fitted (its points are in ``point_pos``).
+        geom_pos, geom_quat: ``[geoms, 3]``, ``[geoms, 4]`` the geom's frame in its body's frame
+            (m; wxyz unit quaternion).
     """
 
     name: str = eqx.field(static=True)
@@ -154,6 +175,11 @@ class Robot(eqx.Module):
     point_bodies: tuple[int, ...] = eqx.field(static=True, default=())
     point_pos: Float[Array, "points 3"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 3)))
     point_radius: Float[Array, " points"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0,)))
+    geom_bodies: tuple[int, ...] = eqx.field(static=True, default=())
+    geom_types: tuple[str, ...] = eqx.field(static=True, default=())
+    geom_size: Float[Array, "geoms 3"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 3)))
+    geom_pos: Float[Array, "geoms 3"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 3)))
+    geom_quat: Float[Array, "geoms 4"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 4)))
 
     def __check_init__(self):
         _validate_structure(self)
@@ -168,6 +194,9 @@ class Robot(eqx.Module):
             ("qpos0", (self.nq,), "(nq,)"),
             ("point_pos", (len(self.point_bodies), 3), "(points, 3)"),
             ("point_radius", (len(self.point_bodies),), "(points,)"),
+            ("geom_size", (len(self.geom_bodies), 3), "(geoms, 3)"),
+            ("geom_pos", (len(self.geom_bodies), 3), "(geoms, 3)"),
+            ("geom_quat", (len(self.geom_bodies), 4), "(geoms, 4)"),
         ):  # fmt: skip
             check_shape(field, getattr(self, field), shape, what=f"{what} = {tuple(shape)}")
 
