@@ -32,10 +32,10 @@ CMU_TO_G1 = {
         {"source": "LeftLeg", "target": "left_knee_link", "orientation_weight": 0.0},
         {"source": "RightLeg", "target": "right_knee_link", "orientation_weight": 0.0},
         {"source": "Spine1", "target": "torso_link", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
 CMU_TO_CMU = {
@@ -46,10 +46,10 @@ CMU_TO_CMU = {
         {"source": "LeftLeg", "target": "ltibia", "orientation_weight": 0.0},
         {"source": "RightLeg", "target": "rtibia", "orientation_weight": 0.0},
         {"source": "Spine1", "target": "thorax", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
 #: Romeo (URDF, meshes missing, so no collision geometry): the feet are the sole frames; of the two links at the
@@ -62,10 +62,10 @@ CMU_TO_ROMEO = {
         {"source": "LeftLeg", "target": "LKneePitchLink", "orientation_weight": 0.0},
         {"source": "RightLeg", "target": "RKneePitchLink", "orientation_weight": 0.0},
         {"source": "Spine1", "target": "torso", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "LElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightForeArm", "target": "RElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "LeftHand", "target": "l_wrist", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightHand", "target": "r_wrist", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftForeArm", "target": "LElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "RElbowYawLink", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "l_wrist", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "r_wrist", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
 #: dm_control's 2020 CMU walker: the same bodies, but a site is named "lwrist" too; it stands Y-up (no free joint).

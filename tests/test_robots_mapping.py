@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -63,13 +64,50 @@ def test_calibration_matches_mujoco_and_the_rest_pose(setup):
     source_height = p[skel.index("Hips"), 1] - min(p[skel.index(f"{s}Foot"), 1] for s in ("Left", "Right"))
     np.testing.assert_allclose(float(cal.scale), robot_height / source_height, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(cal.axes), _Y_UP, atol=0)
-    # each offset takes the (turned) rest rotation of the source joint, the identity, onto MuJoCo's zero pose
+    # the common pose, by MuJoCo: each offset takes the (turned) rest rotation of the source joint, the identity,
+    # onto the robot's rotation there; a foot's onto its zero pose (the G1 stands on level soles)
+    posed = mujoco.MjData(model)
+    posed.qpos[:] = np.asarray(cal.qpos)
+    mujoco.mj_kinematics(model, posed)
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "imu_in_torso")
-    zero = [data.xmat[body(p["target"])].reshape(3, 3) if not p["target"].startswith("site:")
-            else data.site_xmat[site].reshape(3, 3) for p in WALK_TO_G1["pairs"]]
-    for k, R_zero in enumerate(zero):
+    want = [(data if p.get("foot") else posed).xmat[body(p["target"])].reshape(3, 3)
+            if not p["target"].startswith("site:") else posed.site_xmat[site].reshape(3, 3) for p in WALK_TO_G1["pairs"]]
+    for k, R in enumerate(want):
         O = np.asarray(jaxanim.rotations.quat_to_matrix(cal.offset[k]))
-        np.testing.assert_allclose(_Y_UP @ O, R_zero, atol=1e-12, err_msg=f"pair {k}")
+        np.testing.assert_allclose(_Y_UP @ O, R, atol=1e-12, err_msg=f"pair {k}")
+    # the common pose is the rest pose (a T-pose) in the robot's proportions: the root where it was, the forearm
+    # (elbow to wrist) along the source's, sideways, where the zero pose hangs it down
+    np.testing.assert_allclose(np.asarray(cal.qpos[:7]), np.asarray(g1.qpos0[:7]), atol=0)
+    for side in ("left", "right"):
+        forearm = posed.xpos[body(f"{side}_wrist_yaw_link")] - posed.xpos[body(f"{side}_elbow_link")]
+        src = _Y_UP @ (p[skel.index(f"{side.title()}Hand")] - p[skel.index(f"{side.title()}ForeArm")])
+        cos = forearm @ src / np.linalg.norm(forearm) / np.linalg.norm(src)
+        assert cos > np.cos(np.radians(10)), (side, np.degrees(np.arccos(cos)))
+        down = data.xpos[body(f"{side}_wrist_yaw_link")] - data.xpos[body(f"{side}_elbow_link")]
+        assert down @ src / np.linalg.norm(down) / np.linalg.norm(src) < np.cos(np.radians(60))
+
+
+def test_calibration_frame_takes_the_clips_pose(setup):
+    """``calibration_frame: k`` calibrates in the clip's frame k (its root's own frame): the rest pose's offsets
+    when frame k is the rest pose, other ones for another pose, and it needs the clip."""
+    skel, g1, _ = setup
+    walk = jaxanim.read_bvh(jaxanim.default_clip_path())[1]
+    data = json.loads(json.dumps(WALK_TO_G1))
+    data["calibration_frame"] = 1
+    m = retargeting.load_mapping(data)
+    with pytest.raises(jaxanim.JaxanimError, match=r"calibration_frame: 1 names a frame of the clip"):
+        retargeting.calibrate(m, skel, g1)
+    with pytest.raises(jaxanim.JaxanimError, match=r"calibration_frame: 1 is past the clip's last frame \(0\)"):
+        retargeting.calibrate(m, skel, g1, motion=jaxanim.skeleton.rest_motion(skel, 1))
+    rest = retargeting.calibrate(retargeting.load_mapping(WALK_TO_G1), skel, g1)
+    still = jaxanim.skeleton.rest_motion(skel, 2)
+    turned = jaxanim.Motion(still.rotations.at[:, 0].set(jnp.asarray([np.cos(0.4), 0.0, np.sin(0.4), 0.0])),
+                            still.translations.at[:, 0].add(3.0), still.frame_time)  # the root turned and moved: the same pose
+    same = retargeting.calibrate(m, skel, g1, motion=turned)
+    # the same goals to rounding; the IK stops at its tolerance, so its pose agrees to about 1e-7
+    np.testing.assert_allclose(np.asarray(same.offset), np.asarray(rest.offset), atol=1e-6)
+    other = retargeting.calibrate(m, skel, g1, motion=walk)
+    assert np.max(np.abs(np.asarray(other.offset) - np.asarray(rest.offset))) > 1e-2
 
 
 def test_given_offsets_and_scale_are_kept_and_the_file_form_parses(setup, tmp_path):

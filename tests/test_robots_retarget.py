@@ -31,10 +31,10 @@ CMU_TO_G1 = {
         {"source": "LeftLeg", "target": "left_knee_link", "orientation_weight": 0.0},
         {"source": "RightLeg", "target": "right_knee_link", "orientation_weight": 0.0},
         {"source": "Spine1", "target": "torso_link", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
 
@@ -267,7 +267,8 @@ def test_cmu_clip_onto_the_g1():
     robot = robots.load_robot(path)
     res = retargeting.retarget(skel, motion, robot, CMU_TO_G1)
     summary = _check_clip(res, path, ("left_ankle_roll_link", "right_ankle_roll_link"))
-    assert summary["matching_error"] < 0.06
+    # the wrists and elbows follow orientations too (issue 58): 60 mm, where positions alone gave 53
+    assert summary["matching_error"] < 0.07
 
 
 CMU_TO_CMU = {
@@ -278,10 +279,10 @@ CMU_TO_CMU = {
         {"source": "LeftLeg", "target": "ltibia", "orientation_weight": 0.0},
         {"source": "RightLeg", "target": "rtibia", "orientation_weight": 0.0},
         {"source": "Spine1", "target": "thorax", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.0},
-        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.0},
+        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
 

@@ -72,7 +72,10 @@ _SAME = 1e-9
 _FOOT = {"foot": True, "position_weight": 1.0, "orientation_weight": 0.5}
 _KNEE = {"foot": False, "position_weight": 1.0, "orientation_weight": 0.0}
 _CHEST = {"foot": False, "position_weight": 1.0, "orientation_weight": 0.5}
-_HAND = {"foot": False, "position_weight": 0.5, "orientation_weight": 0.0}  # elbows and wrists
+#: An elbow's orientation weight is small: the robot's elbow link lacks the forearm's pronation, which the source's
+#: forearm joint carries (the wrist's roll has it), so its orientation pulls the upper arm round.
+_ELBOW = {"foot": False, "position_weight": 0.5, "orientation_weight": 0.01}
+_WRIST = {"foot": False, "position_weight": 0.5, "orientation_weight": 0.1}
 
 
 class _Shape(NamedTuple):
@@ -350,7 +353,7 @@ def auto_map_dict(skeleton: Skeleton, robot: Robot) -> dict:
     rob_shape = _robot_shape(robot)
     rob = _read(rob_shape, _ROBOT_UPS)
     pairs = []
-    for field, weights in (("foot", _FOOT), ("knee", _KNEE), ("chest", _CHEST), ("elbow", _HAND), ("wrist", _HAND)):
+    for field, weights in (("foot", _FOOT), ("knee", _KNEE), ("chest", _CHEST), ("elbow", _ELBOW), ("wrist", _WRIST)):
         a, b = getattr(src, field), getattr(rob, field)
         for j, body in (zip(a, b) if isinstance(a, tuple) else ((a, b),)):
             pairs.append({"source": skeleton.names[j], "target": _target(robot, body), **weights})

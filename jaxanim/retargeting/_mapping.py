@@ -6,7 +6,8 @@ The JSON contract (issue 30)::
      "pairs": [{"source": "LeftFoot", "target": "left_ankle_roll_link", "foot": true,
                 "position_weight": 1.0, "orientation_weight": 0.1, "offset": [w, x, y, z]}, ...],
      "source_up": "y",          # or "z" (default "y", BVH's)
-     "scale": "auto"}           # or a number (default "auto")
+     "scale": "auto",           # or a number (default "auto")
+     "calibration_frame": 0}    # optional: calibrate in this frame of the clip (default: the rest pose)
 
 Each pair may give ``position_weight`` (default 1), ``orientation_weight`` (default 0.1; 0: the
 pair matches the position only) and ``offset``; ``foot`` marks the pairs whose stance is planted. A
@@ -20,9 +21,11 @@ Everything else is computed by :func:`calibrate`: the source's world axes in the
 source is turned about up so that its pairs, seen from above, line up with the robot's in the zero
 pose: the least-squares turn of each pair's horizontal offset from the root, so a robot that faces
 -Y at ``qpos0``, as dm_control's CMU humanoid does, needs no more than one that faces +X), the
-human-to-robot ``scale`` and each pair's rotation ``offset`` from the source's rest pose and the
-robot's zero pose (``qpos0``): with ``C`` the axes' rotation, a source joint's world rotation ``R``
-drives its target's as ``C R offset``, so ``offset = (C R_rest)^T R_zero``.
+human-to-robot ``scale`` and each pair's rotation ``offset`` in a common pose: the robot is brought
+by IK, on the pairs' positions, into the source's rest pose (a T-pose, where the robot's zero pose
+has its arms down) or the clip's frame ``calibration_frame``, and with ``C`` the axes' rotation, a
+source joint's world rotation ``R`` drives its target's as ``C R offset``, so ``offset = (C
+R_common)^T R_robot`` there; a foot's ``R_robot`` is its zero pose levelled (it stands flat).
 
 ``scale: "auto"`` is the ratio of the two stances' heights, each the root's height above the
 lowest foot pair along up: for a robot whose zero pose stands straight (the G1 does), the ratio of
@@ -49,14 +52,17 @@ from .._types import Array, Float
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Skeleton
 from ..robots._kinematics import world_frames, surface_points, target_frames, target_rows, forward_kinematics
+from ..ik._robot import solve_ik_robot
+from ..ik._targets import Target
 from ..robots._robot import Robot, with_surface_points
+from ..robots._tangent import free_joint_of
 
 __all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping", "with_soles"]
 
 #: A Y-up source (BVH: facing +Z, +X on its left) in the robot's axes (facing +X, +Y on its left, Z up).
 _Y_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _UP_AXES = {"y": _Y_UP, "z": np.eye(3)}
-_TOP_KEYS = {"root", "pairs", "source_up", "scale"}
+_TOP_KEYS = {"root", "pairs", "source_up", "scale", "calibration_frame"}
 _PAIR_KEYS = {"source", "target", "foot", "position_weight", "orientation_weight", "offset", "sole"}
 
 
@@ -72,6 +78,8 @@ class RetargetMap(eqx.Module):
         auto_scale: whether ``scale`` is computed (:func:`calibrate`).
         given_offsets: whether each pair's ``offset`` was given (else computed).
         sole_size: each pair's ``"sole": {"size": [length, width]}`` (m), or ``None``.
+        calibration_frame: the clip's frame that :func:`calibrate` takes as the common pose (``None``: the
+            source's rest pose).
         position_weight, orientation_weight: ``[pairs]`` weights of the matching terms.
         offset: ``[pairs, 4]`` wxyz rotation offsets (identity where not given).
         scale: the human-to-robot scale (``nan`` when ``auto_scale``).
@@ -86,6 +94,7 @@ class RetargetMap(eqx.Module):
     auto_scale: bool = eqx.field(static=True)
     given_offsets: tuple[bool, ...] = eqx.field(static=True)
     sole_size: tuple[tuple[float, float] | None, ...] = eqx.field(static=True)
+    calibration_frame: int | None = eqx.field(static=True)
     position_weight: Float[Array, " pairs"]
     orientation_weight: Float[Array, " pairs"]
     offset: Float[Array, "pairs 4"]
@@ -104,11 +113,14 @@ class Calibration(eqx.Module):
         scale: human-to-robot scale (source units to metres of the robot).
         offset: ``[pairs, 4]`` wxyz rotation offsets: a pair's target rotation is
             ``axes R_source offset``.
+        qpos: ``[nq]`` the robot in the common pose where the offsets were taken (``None`` in a
+            calibration made by hand).
     """
 
     axes: Float[Array, "3 3"]
     scale: Float[Array, ""]
     offset: Float[Array, "pairs 4"]
+    qpos: Float[Array, " nq"] | None = None
 
 
 def _number(where: str, value, *, positive: bool = False) -> float:
@@ -164,6 +176,9 @@ def load_mapping(mapping) -> RetargetMap:
         raise JaxanimError(f"mapping: source_up: expected 'y' or 'z', got {up!r}")
     scale = mapping.get("scale", "auto")
     auto = scale == "auto"
+    frame = mapping.get("calibration_frame")
+    if frame is not None and (isinstance(frame, bool) or not isinstance(frame, int) or frame < 0):
+        raise JaxanimError(f"mapping: calibration_frame: expected a frame index (an int >= 0), got {frame!r}")
     scale = np.nan if auto else _number("scale", scale, positive=True)
     sources, targets, feet, wp, wo, offsets, given, soles = [], [], [], [], [], [], [], []
     for i, p in enumerate(pairs):
@@ -197,7 +212,7 @@ def load_mapping(mapping) -> RetargetMap:
     return RetargetMap(
         root_source=_name("root.source", root["source"]), root_target=_name("root.target", root["target"]),
         sources=tuple(sources), targets=tuple(targets), feet=tuple(feet), source_up=up, auto_scale=auto,
-        given_offsets=tuple(given), sole_size=tuple(soles), position_weight=jnp.asarray(wp), orientation_weight=jnp.asarray(wo),
+        given_offsets=tuple(given), sole_size=tuple(soles), calibration_frame=frame, position_weight=jnp.asarray(wp), orientation_weight=jnp.asarray(wo),
         offset=jnp.asarray(np.stack(offsets)), scale=jnp.asarray(scale),
     )
 
@@ -245,6 +260,18 @@ _rest_fk = eqx.filter_jit(skeleton_fk)
 #: Rotation matrices to canonical quaternions, compiled (op by op it compiled each operation per new shape).
 _canonical_quat = jax.jit(lambda R: rot.quat_canonical(rot.matrix_to_quat(R)))
 
+
+#: The calibration IK's pull of every joint towards ``qpos0`` (per rad^2, against m^2 of the targets): small,
+#: so the pairs are reached, and enough to keep the redundant joints (a wrist's twist) at their zero.
+_CALIBRATION_DAMPING = 1e-4
+#: A pair whose zero-pose segment (from its anchor) is within this angle (rad) of the source's is left as it is,
+#: and so is an anchor between pairs (a shoulder, a hip) within the second: the short segments from a pelvis to
+#: its hips differ by the two bodies' proportions (the G1's by 24 degrees from the walk's), an arm hanging
+#: down where the source holds it out by 90.
+_SAME_DIRECTION = np.radians(20.0)
+_SAME_ANCHOR = np.radians(45.0)
+#: The calibration IK's weight on the root's dofs against the joints': it stays where it is (to ~1e-9 m).
+_HELD = 1e8
 
 #: The default footprint of a foot without collision geometry, as fractions of the robot's leg length
 #: (an adult's foot is about 0.26 m long and 0.1 m wide for a leg of about 0.9 m).
@@ -308,7 +335,8 @@ def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], .
 
     ``points`` are the foot's surface points (its body's and its descendants', indices into
     ``Robot.point_pos``). Flat is the zero pose's orientation of the target tilted by the least
-    rotation that levels the plane fitted through those points (their lowest surface, least squares):
+    rotation that levels the plane fitted through those points (their lowest surface, least squares; a
+    mesh's points are its underside):
     a robot whose zero pose splays its legs, as dm_control's CMU humanoid does by 20 degrees, still
     plants its soles flat, and one that stands on level soles (the G1) keeps its zero pose. ``height``
     is the target's height above the lowest point of the levelled foot (m).
@@ -341,15 +369,122 @@ def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], .
     return tuple(points), np.stack(flat) if flat else np.zeros((0, 3, 3)), np.asarray(heights)
 
 
-def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibration:
-    """The axes, scale and rotation offsets of ``mapping`` for ``skeleton`` and ``robot``, from the
-    skeleton's rest pose (identity rotations, OFFSETs) and the robot's zero pose (``qpos0``).
+def _common_pose(robot: Robot, names, goals, root_body: int) -> np.ndarray:
+    """``[nq]`` the robot brought by IK, on positions, to ``goals`` (its targets ``names``), its root kept
+    at the zero pose and its joints pulled towards ``qpos0`` (the redundant ones, such as a wrist's
+    twist, stay there); the zero pose itself when there is no goal."""
+    if not names:
+        return np.asarray(robot.qpos0, np.float64)
+    free = free_joint_of(robot, root_body)
+    dtype = robot.qpos0.dtype
+    weights, frozen = np.ones(robot.nv), ()
+    if free is not None and robot.jnt_names[free]:  # the root stays where it is
+        frozen = (robot.jnt_names[free],)
+    elif free is not None:  # a free joint without a name: its dofs held by the regularizer
+        weights[robot.jnt_dofadr[free]:robot.jnt_dofadr[free] + 6] = _HELD
+    targets = tuple(Target(n, position=jnp.asarray(g, dtype)) for n, g in zip(names, goals))
+    sol = solve_ik_robot(robot, targets, robot.qpos0, frozen=frozen, regularization=_CALIBRATION_DAMPING,
+                         joint_weights=jnp.asarray(weights, dtype))
+    q = np.asarray(sol.qpos, np.float64)
+    if not np.all(np.isfinite(q)):
+        raise JaxanimError(f"calibrate: the IK into the common pose gave non-finite values ({sol.result})")
+    return q
+
+
+def _common_goals(skeleton: Skeleton, robot: Robot, pairs, p_c, p_rob, scale, root) -> tuple[np.ndarray, np.ndarray]:
+    """``(goals [P, 3], away [P])``: where the calibration IK puts each pair's target, the source's pose in the
+    robot's proportions, and whether it is away from there in the zero pose (the IK moves only those; the
+    others keep their zero pose, so a leg already straight is not twisted about its length to shave
+    millimetres off a knee whose offsets differ from the source's).
+
+    ``pairs`` are ``(source joint, target row)`` and ``root`` the root's. A joint hangs from its source
+    parent, placed on the robot at the pair whose source that parent is, else at the robot ancestor nearest
+    to it (mapped by the scale, root on root): a shoulder, a hip, placed the same way in turn. Its goal is
+    its anchor's goal plus the robot's anchor-to-target length along the source's parent-to-joint
+    direction, so the limbs point as the source's do at the robot's lengths, whatever the proportions (a
+    torso frame at the waist and a chest joint at the chest do not pull the pose apart). It is away when
+    its anchor is, or when the robot can turn that segment (a joint lies between) and it points more than
+    :data:`_SAME_DIRECTION` (:data:`_SAME_ANCHOR` for an anchor that is no pair) from the source's."""
+    nb = robot.num_bodies
+    body_of = [r if r < nb else robot.site_bodies[r - nb] for r in range(nb + robot.num_sites)]
+    mapped = p_rob[root[1]] + scale * (p_c - p_c[root[0]])  # every source joint, root on the robot's root
+    row_of = {j: r for j, r in pairs}
+    row_of[root[0]] = root[1]
+    pair_rows = {r for _, r in pairs}
+    jointed = set(robot.jnt_bodies)
+    jnt_pos = np.asarray(robot.jnt_pos, np.float64)
+    placed: dict[tuple[int, int], tuple[np.ndarray, bool]] = {}
+
+    def place(j: int, r: int) -> tuple[np.ndarray, bool]:
+        if (j, r) in placed:
+            return placed[(j, r)]
+        parent = skeleton.parents[j]
+        chain = _tree.ancestors(robot.body_parents, body_of[r])[1:]  # the world excluded
+        if r < nb:
+            chain = chain[:-1]  # a body hangs from above it; a site may hang from its own body
+        if parent < 0 or r == root[1] or not chain:
+            placed[(j, r)] = (p_rob[r], False)
+            return placed[(j, r)]
+        anchor = row_of.get(parent)
+        if anchor is None or anchor == r:
+            anchor = min(chain, key=lambda b: float(np.sum((p_rob[b] - mapped[parent]) ** 2)))
+        at, moved = place(parent, anchor)
+        d, v = p_c[j] - p_c[parent], p_rob[r] - p_rob[anchor]
+        n, length = float(np.linalg.norm(d)), float(np.linalg.norm(v))
+        between = _tree.ancestors(robot.body_parents, body_of[r])
+        between = between[between.index(body_of[anchor]) + 1:] if body_of[anchor] in between else between
+        # the segment turns when a joint lies between, or one on the target's body that moves the target: a
+        # site, a slide, or an origin off the joint's axis (a hinge at its body's origin leaves it in place)
+        own = [j for j, b in enumerate(robot.jnt_bodies) if b == body_of[r]]
+        turns = any(b in jointed for b in between[:-1]) or any(
+            r >= nb or robot.jnt_types[j] == "slide" or bool(np.any(jnt_pos[j] != 0)) for j in own)
+        cos = float(d @ v) / (n * length) if n > 0 and length > 0 else 1.0
+        limit = _SAME_DIRECTION if r in pair_rows else _SAME_ANCHOR  # a hip's offset is the body's shape, not its pose
+        away = moved or (turns and cos < np.cos(limit))
+        placed[(j, r)] = (at + length * d / n if away and n > 0 else p_rob[r], away)
+        return placed[(j, r)]
+
+    out = [place(j, r) for j, r in pairs]
+    if not out:
+        return np.zeros((0, 3)), np.zeros(0, bool)
+    return np.stack([g for g, _ in out]), np.asarray([a for _, a in out])
+
+
+def _source_pose(skeleton: Skeleton, mapping: RetargetMap, motion, rest):
+    """The source's calibration pose: ``(positions [J, 3], rotations [J, 3, 3])`` of its rest pose, or of the
+    clip's frame ``calibration_frame`` expressed in its root's frame (as the rest pose is)."""
+    k = mapping.calibration_frame
+    if k is None:
+        return np.asarray(rest.positions, np.float64), np.asarray(rest.rotations, np.float64)
+    if motion is None:
+        raise JaxanimError(f"mapping: calibration_frame: {k} names a frame of the clip; calibrate(..., motion=clip)")
+    if k >= motion.num_frames:
+        raise JaxanimError(f"mapping: calibration_frame: {k} is past the clip's last frame ({motion.num_frames - 1})")
+    fk = _rest_fk(skeleton, motion.rotations[k], motion.translations[k])
+    p, R = np.asarray(fk.positions, np.float64), np.asarray(fk.rotations, np.float64)
+    root = skeleton.names.index(mapping.root_source)
+    return (p - p[root]) @ R[root], np.swapaxes(R[root], -1, -2) @ R
+
+
+def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot, *, motion=None) -> Calibration:
+    """The axes, scale and rotation offsets of ``mapping`` for ``skeleton`` and ``robot``.
+
+    The axes and the scale come from the skeleton's rest pose (identity rotations, OFFSETs) and the
+    robot's zero pose (``qpos0``). The offsets come from a common pose: the robot is brought by IK, on
+    the pairs' positions (scaled, its root kept where it is), into the source's rest pose, or into the
+    clip's frame ``calibration_frame`` of the map, and each pair's offset is its rotation there
+    relative to the source joint's; a foot's is its levelled zero pose's (it stands flat).
 
     Given offsets and a given scale are kept; the others are computed (see the module docstring).
 
+    Args:
+        mapping, skeleton, robot: the map (:func:`load_mapping`), the source skeleton and the robot.
+        motion: the clip, for a map with ``calibration_frame``.
+
     Raises:
-        JaxanimError: an unknown source joint or robot body / site (the valid names listed), or a
-            foot pair that is not below the root in either pose.
+        JaxanimError: an unknown source joint or robot body / site (the valid names listed), a
+            foot pair that is not below the root in either pose, or a ``calibration_frame`` without
+            ``motion`` or past its end.
     """
     if not isinstance(mapping, RetargetMap):
         raise JaxanimError(f"mapping: expected a RetargetMap (retargeting.load_mapping), got {type(mapping).__name__}")
@@ -377,11 +512,20 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot) -> Calibra
     given = np.asarray(mapping.offset, np.float64)
     feet = [i for i, foot in enumerate(mapping.feet) if foot]
     robot, _ = with_soles(robot, mapping)  # a foot without geometry stands on its target's frame
-    R_pair = R_rob[tgt]
+    # the common pose: the source's (rest pose or frame), the robot brought into it by IK on positions
+    p_c, R_c = _source_pose(skeleton, mapping, motion, rest)
+    p_c, R_c = p_c @ axes.T, axes @ R_c
+    moving = [i for i in range(mapping.num_pairs) if tgt[i] != tgt_root]
+    root_body = target_rows(robot, (mapping.root_target,))[0][0]
+    goals, away = _common_goals(skeleton, robot, [(src[i], tgt[i]) for i in moving], p_c, p_rob, scale,
+                                (src_root, tgt_root))
+    q = _common_pose(robot, [mapping.targets[i] for i, a in zip(moving, away) if a], goals[away], root_body)
+    posed = forward_kinematics(robot, jnp.asarray(q, robot.qpos0.dtype))
+    R_pair = np.concatenate([np.asarray(posed.xmat, np.float64), np.asarray(posed.site_xmat, np.float64)])[tgt]
     R_pair[feet] = _standing_feet(robot, target_rows(robot, [mapping.targets[i] for i in feet])[0], [tgt[i] for i in feet])[1]
-    M = np.swapaxes(R_src[src], -1, -2) @ R_pair  # each pair's offset, computed in one call
+    M = np.swapaxes(R_c[src], -1, -2) @ R_pair  # each pair's offset, computed in one call
     computed = np.asarray(_canonical_quat(jnp.asarray(M)), np.float64)
     offsets = [given[i] if mapping.given_offsets[i] else computed[i] for i in range(mapping.num_pairs)]
     dtype = robot.qpos0.dtype
     return Calibration(axes=jnp.asarray(axes, dtype), scale=jnp.asarray(scale, dtype),
-                       offset=jnp.asarray(np.stack(offsets), dtype))
+                       offset=jnp.asarray(np.stack(offsets), dtype), qpos=jnp.asarray(q, dtype))

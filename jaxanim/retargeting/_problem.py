@@ -142,6 +142,7 @@ def _with_root(mapping: RetargetMap) -> RetargetMap:
         sources=(mapping.root_source,) + mapping.sources, targets=(mapping.root_target,) + mapping.targets,
         feet=(False,) + mapping.feet, source_up=mapping.source_up, auto_scale=mapping.auto_scale,
         given_offsets=(False,) + mapping.given_offsets, sole_size=(None,) + mapping.sole_size,
+        calibration_frame=mapping.calibration_frame,
         position_weight=jnp.concatenate([one, mapping.position_weight]),
         orientation_weight=jnp.concatenate([one, mapping.orientation_weight]),
         offset=jnp.concatenate([jnp.asarray([[1.0, 0.0, 0.0, 0.0]], mapping.offset.dtype), mapping.offset]),
@@ -228,12 +229,13 @@ def prepare_retarget(
     bodies, rows = target_rows(robot, full.targets)
     robot, floating = _floating(robot, bodies[0], bool(fixed_base))
     robot, added = with_soles(robot, full)
-    calib = calibrate(full, skeleton, robot) if calibration is None else calibration
+    calib = calibrate(full, skeleton, robot, motion=motion) if calibration is None else calibration
     offsets = np.asarray(calib.offset, np.float64)
     if calibration is not None:  # a user's calibration has the pairs only: compute the root's
         if offsets.shape[0] != mapping.num_pairs:
             raise JaxanimError(f"calibration: expected offsets for the {mapping.num_pairs} pairs, got {offsets.shape[0]}")
-        offsets = np.concatenate([np.asarray(calibrate(full, skeleton, robot).offset, np.float64)[:1], offsets])
+        offsets = np.concatenate([np.asarray(calibrate(full, skeleton, robot, motion=motion).offset, np.float64)[:1],
+                                  offsets])
     K = len(full.targets)
     length = T if length is None else int(length)
     if length < T:
