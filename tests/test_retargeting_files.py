@@ -270,3 +270,32 @@ def test_a_mesh_footed_urdf_stands_on_its_meshes():
     # its sole is rounded (its underside's points lie within 9 mm of the lowest): the plane fitted through them
     # tilts by a fraction of a degree, which moves the height by about a millimetre (1.2 mm)
     np.testing.assert_allclose(np.asarray(problem.foot_height), [-lowest] * 2, atol=2e-3)
+
+
+def test_cli_retargets_the_v2020_walker_that_lies_in_its_zero_pose(tmp_path, capsys):
+    """dm_control's V2020 CMU walker, as it is: no free joint, and its zero pose stands along +Y (dm_control turns
+    it when it attaches it to an arena). ``--map auto`` finds its map, retargeting adds the free joint and turns
+    its zero pose up (``retargeting.upright``), and the clip meets the README's thresholds."""
+    from jaxanim.app import main
+
+    path = shared_data_dir() / "robots" / "cmu_humanoid" / "humanoid_CMU_V2020.xml"
+    robot = robots.with_floating_base(robots.load_robot(path))
+    skel, _ = jaxanim.read_bvh(jaxanim.default_clip_path())
+    mapping = retargeting.auto_map(skel, robot)
+    stood = retargeting.upright(robot, mapping)
+    for r, up in ((robot, 1), (stood, 2)):  # the root above the feet: along +Y, then along +Z
+        fk = robots.forward_kinematics(r, r.qpos0)
+        feet = np.mean([np.asarray(fk.xpos)[r.body_index(t)] for t, f in zip(mapping.targets, mapping.feet) if f], 0)
+        v = np.asarray(fk.xpos)[r.body_index(mapping.root_target.removeprefix("body:"))] - feet
+        assert v[up] > 0.9 * np.linalg.norm(v), (up, v)
+    np.testing.assert_array_equal(np.asarray(stood.qpos0[7:]), np.asarray(robot.qpos0[7:]))  # the joints as they were
+    g1 = robots.load_robot(shared_data_dir() / "robots" / "unitree_g1" / "g1.xml")
+    assert retargeting.upright(g1, retargeting.load_mapping(retargeting.default_mapping_path())) is g1
+    out = tmp_path / "v2020.npz"
+    code = main(["--no-compile-cache", "retarget", "--robot", str(path), "--map", "auto", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    slide = re.search(r"stance foot slide \(median\) ([\d.]+) mm/s, penetration ([\d.]+) mm", captured.out)
+    violation = re.search(r"joint-range violation ([\d.e+-]+),", captured.out)
+    _check_clip({"foot_slide": float(slide[1]) * 1e-3, "penetration": float(slide[2]) * 1e-3,
+                 "range_violation": float(violation[1])})

@@ -13,6 +13,7 @@ from ._mapping import (
     RetargetMap as RetargetMap,
     calibrate as calibrate,
     load_mapping as load_mapping,
+    upright as upright,
     with_soles as with_soles,
 )
 from ._problem import (

@@ -37,9 +37,9 @@ gets the same map). Each tree is read the same way, unless said:
 Where bodies share a position (a joint's several hinges, each on a body of its own), the deepest is
 taken: it moves with all of them. A tree that cannot be read so (fewer than two legs, no arms, feet
 that do not show which way is forward, both legs on one side) raises a :class:`JaxanimError` naming
-what is missing. :func:`calibrate` computes the rest from the map (axes, scale, offsets); it expects
-a robot that stands Z-up in its zero pose (dm_control's V2020 CMU walker stands Y-up until it is
-attached to an arena: its map is found, but not calibrated).
+what is missing. :func:`calibrate` computes the rest from the map (axes, scale, offsets); a robot
+that lies in its zero pose (dm_control's V2020 CMU walker stands along +Y until it is attached to an
+arena) is stood up first by its free joint (:func:`upright`).
 """
 
 from __future__ import annotations

@@ -35,6 +35,7 @@ degrees).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import warnings
@@ -57,7 +58,7 @@ from ..ik._targets import Target
 from ..robots._robot import Robot, with_surface_points
 from ..robots._tangent import free_joint_of
 
-__all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping", "with_soles"]
+__all__ = ["Calibration", "RetargetMap", "calibrate", "load_mapping", "upright", "with_soles"]
 
 #: A Y-up source (BVH: facing +Z, +X on its left) in the robot's axes (facing +X, +Y on its left, Z up).
 _Y_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -230,6 +231,40 @@ def _target_row(robot: Robot, where: str, name: str) -> int:
     except JaxanimError as exc:
         message = str(exc)
         raise JaxanimError(f"mapping: {where}: {message.removeprefix('names: ')}") from None
+
+
+#: A zero pose whose root stands within this angle of straight above its feet is upright (the rest are turned).
+_UPRIGHT = np.radians(45.0)
+
+
+def upright(robot: Robot, mapping: RetargetMap) -> Robot:
+    """The robot standing up: where its zero pose does not put the map's root above its feet (dm_control's
+    V2020 CMU walker stands along +Y until it is attached to an arena), its free joint's part of ``qpos0``
+    turned by the least rotation that takes the feet-to-root direction onto +Z; otherwise (or without a free
+    joint on the root) the robot as it is. Only the zero pose changes, which the calibration reads: the
+    solve sets the root from the clip."""
+    feet = [mapping.targets[i] for i, foot in enumerate(mapping.feet) if foot]
+    if not feet:
+        return robot
+    (root_body,), (root_row,) = target_rows(robot, (mapping.root_target,))
+    rows = target_rows(robot, feet)[1]
+    zero = forward_kinematics(robot, robot.qpos0)
+    p = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])
+    v = p[root_row] - p[list(rows)].mean(axis=0)
+    n = float(np.linalg.norm(v))
+    free = free_joint_of(robot, root_body)
+    if n == 0.0 or v[2] >= np.cos(_UPRIGHT) * n or free is None:
+        return robot
+    axis = np.cross(v / n, [0.0, 0.0, 1.0])
+    angle = np.arccos(np.clip(v[2] / n, -1.0, 1.0))
+    axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 1e-12 else np.array([1.0, 0.0, 0.0])
+    turn = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])  # wxyz
+    R = np.asarray(rot.quat_to_matrix(jnp.asarray(turn)), np.float64)
+    a = robot.jnt_qposadr[free]
+    q0 = np.asarray(robot.qpos0, np.float64).copy()
+    q0[a:a + 3] = R @ q0[a:a + 3]
+    q0[a + 3:a + 7] = np.asarray(rot.quat_multiply(jnp.asarray(turn), jnp.asarray(q0[a + 3:a + 7])), np.float64)
+    return dataclasses.replace(robot, qpos0=jnp.asarray(q0, robot.qpos0.dtype))
 
 
 def _heading(p_src, src_root, src, p_rob, rob_root, rob) -> np.ndarray:
@@ -492,6 +527,7 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot, *, motion=
     src_root = _source_index(skeleton, "root.source", mapping.root_source)
     tgt = [_target_row(robot, f"pairs[{i}].target", n) for i, n in enumerate(mapping.targets)]
     tgt_root = _target_row(robot, "root.target", mapping.root_target)
+    robot = upright(robot, mapping)  # a robot that lies in its zero pose, stood up by its free joint
     rest = _rest_fk(skeleton, skeleton.rest_rotations(), skeleton.offsets)
     zero = forward_kinematics(robot, robot.qpos0)
     p_rob = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])

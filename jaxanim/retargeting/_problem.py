@@ -26,7 +26,8 @@ from ..kinematics._contacts import true_runs, detect_foot_contacts
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
 from ..robots._kinematics import target_rows
-from ._mapping import Calibration, RetargetMap, _canonical_quat, _standing_feet, calibrate, load_mapping, with_soles
+from ._mapping import (Calibration, RetargetMap, _canonical_quat, _standing_feet, calibrate, load_mapping, upright,
+                       with_soles)
 from ..robots._robot import Robot, with_floating_base, with_surface_points
 from ..robots._tangent import free_joint_of
 
@@ -228,6 +229,7 @@ def prepare_retarget(
     full = _with_root(mapping)
     bodies, rows = target_rows(robot, full.targets)
     robot, floating = _floating(robot, bodies[0], bool(fixed_base))
+    robot = upright(robot, full)  # only the zero pose's root turns (the solve sets the root from the clip)
     robot, added = with_soles(robot, full)
     calib = calibrate(full, skeleton, robot, motion=motion) if calibration is None else calibration
     offsets = np.asarray(calib.offset, np.float64)
