@@ -206,3 +206,36 @@ def phys_cmu_character():
     q0, t0 = motion.rotations[0], motion.translations[0]
     char, state = character.build_character(skel, q0, t0, ground=contact.make_ground("complementarity"))
     return skel, motion, q0, t0, char, state
+
+
+#: The hand-written retargeting maps of the CMU clip (../shared/data/bvh) onto the G1 and onto dm_control's CMU
+#: humanoid (tests/test_robots_retarget.py retargets with them; tests/test_retargeting_auto_map.py finds them).
+CMU_TO_G1 = {
+    "root": {"source": "Hips", "target": "pelvis"},
+    "pairs": [
+        {"source": "LeftFoot", "target": "left_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
+        {"source": "RightFoot", "target": "right_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
+        {"source": "LeftLeg", "target": "left_knee_link", "orientation_weight": 0.0},
+        {"source": "RightLeg", "target": "right_knee_link", "orientation_weight": 0.0},
+        {"source": "Spine1", "target": "torso_link", "orientation_weight": 0.5},
+        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
+    ],
+}
+
+CMU_TO_CMU = {
+    "root": {"source": "Hips", "target": "body:root"},
+    "pairs": [
+        {"source": "LeftFoot", "target": "lfoot", "foot": True, "orientation_weight": 0.5},
+        {"source": "RightFoot", "target": "rfoot", "foot": True, "orientation_weight": 0.5},
+        {"source": "LeftLeg", "target": "ltibia", "orientation_weight": 0.0},
+        {"source": "RightLeg", "target": "rtibia", "orientation_weight": 0.0},
+        {"source": "Spine1", "target": "thorax", "orientation_weight": 0.5},
+        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.01},
+        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.1},
+        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.1},
+    ],
+}

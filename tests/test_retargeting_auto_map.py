@@ -19,39 +19,10 @@ from jaxanim import retargeting, robots
 from jaxanim.app import main
 
 from .conftest import shared_data_dir
+from .helpers import CMU_TO_CMU, CMU_TO_G1
 
 pytest.importorskip("mujoco")
 
-#: The hand-written maps of tests/test_robots_retarget.py (copied: importing that file compiles nothing, but it
-#: is the solve's test file and may grow fixtures).
-CMU_TO_G1 = {
-    "root": {"source": "Hips", "target": "pelvis"},
-    "pairs": [
-        {"source": "LeftFoot", "target": "left_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
-        {"source": "RightFoot", "target": "right_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
-        {"source": "LeftLeg", "target": "left_knee_link", "orientation_weight": 0.0},
-        {"source": "RightLeg", "target": "right_knee_link", "orientation_weight": 0.0},
-        {"source": "Spine1", "target": "torso_link", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
-        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
-    ],
-}
-CMU_TO_CMU = {
-    "root": {"source": "Hips", "target": "body:root"},
-    "pairs": [
-        {"source": "LeftFoot", "target": "lfoot", "foot": True, "orientation_weight": 0.5},
-        {"source": "RightFoot", "target": "rfoot", "foot": True, "orientation_weight": 0.5},
-        {"source": "LeftLeg", "target": "ltibia", "orientation_weight": 0.0},
-        {"source": "RightLeg", "target": "rtibia", "orientation_weight": 0.0},
-        {"source": "Spine1", "target": "thorax", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.1},
-        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.1},
-    ],
-}
 #: Romeo (URDF, meshes missing, so no collision geometry): the feet are the sole frames; of the two links at the
 #: elbow (LElbowRollLink, LElbowYawLink) the deeper; the wrist is the last moving link (l_gripper is fixed).
 CMU_TO_ROMEO = {

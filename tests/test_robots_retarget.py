@@ -15,6 +15,7 @@ import solvers
 from jaxanim import retargeting, robots
 
 from .conftest import shared_data_dir
+from .helpers import CMU_TO_CMU, CMU_TO_G1
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -23,20 +24,6 @@ SLIDE = 1e-3  # m/s, median stance slide
 PENETRATION = 1e-3  # m
 RANGE = 1e-6
 
-CMU_TO_G1 = {
-    "root": {"source": "Hips", "target": "pelvis"},
-    "pairs": [
-        {"source": "LeftFoot", "target": "left_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
-        {"source": "RightFoot", "target": "right_ankle_roll_link", "foot": True, "orientation_weight": 0.5},
-        {"source": "LeftLeg", "target": "left_knee_link", "orientation_weight": 0.0},
-        {"source": "RightLeg", "target": "right_knee_link", "orientation_weight": 0.0},
-        {"source": "Spine1", "target": "torso_link", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "left_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "RightForeArm", "target": "right_elbow_link", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "LeftHand", "target": "left_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
-        {"source": "RightHand", "target": "right_wrist_yaw_link", "position_weight": 0.5, "orientation_weight": 0.1},
-    ],
-}
 
 #: The banded solves compiled whole: called eagerly, each call compiled every operation of the solve apart, on every
 #: new shape (60-70 small programs and about 3.5 s per parametrization of the pentadiagonal test in the suite); _solve
@@ -271,20 +258,6 @@ def test_cmu_clip_onto_the_g1():
     assert summary["matching_error"] < 0.07
 
 
-CMU_TO_CMU = {
-    "root": {"source": "Hips", "target": "body:root"},
-    "pairs": [
-        {"source": "LeftFoot", "target": "lfoot", "foot": True, "orientation_weight": 0.5},
-        {"source": "RightFoot", "target": "rfoot", "foot": True, "orientation_weight": 0.5},
-        {"source": "LeftLeg", "target": "ltibia", "orientation_weight": 0.0},
-        {"source": "RightLeg", "target": "rtibia", "orientation_weight": 0.0},
-        {"source": "Spine1", "target": "thorax", "orientation_weight": 0.5},
-        {"source": "LeftForeArm", "target": "lradius", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "RightForeArm", "target": "rradius", "position_weight": 0.5, "orientation_weight": 0.01},
-        {"source": "LeftHand", "target": "lwrist", "position_weight": 0.5, "orientation_weight": 0.1},
-        {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.1},
-    ],
-}
 
 
 def _sole_tilt(model, data, body):

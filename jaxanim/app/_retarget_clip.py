@@ -233,12 +233,17 @@ def _scalar_string(label: str, key: str, a) -> str:
     return x.decode() if isinstance(x, bytes) else str(x)
 
 
-def _parents(label: str, key: str, a: np.ndarray, n: int, what: str) -> np.ndarray:
+def _integers(label: str, key: str, a: np.ndarray, shape: tuple, what: str, kind: str) -> np.ndarray:
+    """``a`` as int64 indices of ``shape``; a clear error naming the key otherwise."""
     _numbers(label, key, a)
-    _shape(label, key, a, (n,), what)
+    _shape(label, key, a, shape, what)
     if a.dtype == np.bool_ or (np.issubdtype(a.dtype, np.floating) and not np.all(a == np.round(a))):
-        raise JaxanimError(f"{label}: key {key!r}: expected integer parent indices, got dtype {a.dtype}")
-    p = a.astype(np.int64)
+        raise JaxanimError(f"{label}: key {key!r}: expected integer {kind} indices, got dtype {a.dtype}")
+    return a.astype(np.int64)
+
+
+def _parents(label: str, key: str, a: np.ndarray, n: int, what: str) -> np.ndarray:
+    p = _integers(label, key, a, (n,), what, "parent")
     bad = [i for i, q in enumerate(p) if not -1 <= q < i]
     if bad:
         i = bad[0]
@@ -270,11 +275,7 @@ def _finite(label: str, key: str, a: np.ndarray, shape: tuple, what: str) -> np.
 
 
 def _bodies(label: str, key: str, a: np.ndarray, B: int, what: str) -> np.ndarray:
-    _numbers(label, key, a)
-    _shape(label, key, a, (None,), what)
-    if a.dtype == np.bool_ or (np.issubdtype(a.dtype, np.floating) and not np.all(a == np.round(a))):
-        raise JaxanimError(f"{label}: key {key!r}: expected integer body indices, got dtype {a.dtype}")
-    b = a.astype(np.int64)
+    b = _integers(label, key, a, (None,), what, "body")
     bad = [i for i, x in enumerate(b) if not 1 <= x < B]
     if bad:
         raise JaxanimError(f"{label}: key {key!r}: entry {bad[0]} is {b[bad[0]]}: expected a body index in [1, {B}) "

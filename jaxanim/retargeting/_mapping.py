@@ -531,11 +531,9 @@ def calibrate(mapping: RetargetMap, skeleton: Skeleton, robot: Robot, *, motion=
     rest = _rest_fk(skeleton, skeleton.rest_rotations(), skeleton.offsets)
     zero = forward_kinematics(robot, robot.qpos0)
     p_rob = np.concatenate([np.asarray(zero.xpos, np.float64), np.asarray(zero.site_xpos, np.float64)])
-    R_rob = np.concatenate([np.asarray(zero.xmat, np.float64), np.asarray(zero.site_xmat, np.float64)])
     axes = _heading(np.asarray(rest.positions, np.float64) @ _UP_AXES[mapping.source_up].T, src_root, src,
                     p_rob, tgt_root, tgt) @ _UP_AXES[mapping.source_up]
     p_src = np.asarray(rest.positions, np.float64) @ axes.T  # in the robot's axes
-    R_src = axes @ np.asarray(rest.rotations, np.float64)
     heights = []
     for p, root, rows, what in ((p_src, src_root, src, "source rest pose"), (p_rob, tgt_root, tgt, "robot zero pose")):
         for i, foot in enumerate(mapping.feet):
