@@ -12,6 +12,7 @@ import pathlib
 import statistics
 import sys
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -92,6 +93,17 @@ def _as_dtype(tree, dtype):
 
 #: ``--body-model``, for the command that :func:`_body_model` wraps: the commands call :func:`_load` without it.
 _BODY_MODEL: contextvars.ContextVar[str | None] = contextvars.ContextVar("jaxanim_body_model", default=None)
+
+
+@contextlib.contextmanager
+def _warnings_to(ui: _UI):
+    """The Python warnings raised inside (a URDF's missing meshes, a foot's default sole) printed as the
+    command's own warnings, one line each, once the block has run."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        ui.warning(str(w.message))
 
 
 @contextlib.contextmanager

@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 import pathlib
 import time
-import warnings
 
 import jax
 import numpy as np
 
 from .._errors import JaxanimError
-from ._common import _UI, _as_dtype, _duration
+from ._common import _UI, _as_dtype, _duration, _warnings_to
 
 #: The clip length above which the command reports the solve's stages as it goes.
 _LONG = 300
@@ -35,22 +34,16 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
         from ..skeleton import default_clip_path  # noqa: PLC0415
         source = default_clip_path()
     skeleton, motion = _as_dtype(read_clip(source, body_model=args.body_model), dtype)
-    with warnings.catch_warnings(record=True) as caught:  # a URDF's missing meshes: one line, the CLI's way
-        warnings.simplefilter("always")
+    with _warnings_to(ui):  # a URDF's missing meshes
         robot = robots.load_robot(robot_path, dtype=dtype)
-    for w in caught:
-        ui.warning(str(w.message))
     unbounded = [n for n, t, lim in zip(robot.jnt_names, robot.jnt_types, robot.jnt_limited)
                  if t in ("hinge", "slide") and not lim]
     if unbounded:
         ui.warning(f"{len(unbounded)} joint(s) without a range, treated as unbounded: {unbounded}")
     start = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:  # a foot's default sole
-        warnings.simplefilter("always")
+    with _warnings_to(ui):  # a foot's default sole
         problem = retargeting.prepare_retarget(skeleton, motion, robot, retargeting.auto_map(skeleton, robot)
                                                if map_path == "auto" else map_path, fixed_base=args.fixed_base)
-    for w in caught:
-        ui.warning(str(w.message))
     if problem.floating:
         ui.progress(f"{robot.name}: its root body has no free joint; retargeting adds one, 'root_joint', first in "
                     "qpos (--fixed-base refuses this)")

@@ -55,6 +55,7 @@ from ..skeleton._skeleton import Skeleton
 from ..robots._kinematics import world_frames, surface_points, target_frames, target_rows, forward_kinematics
 from ..ik._robot import solve_ik_robot
 from ..ik._targets import Target
+from ..rotations._numpy import quat_exp, quat_mul, quat_to_matrix
 from ..robots._robot import Robot, with_surface_points
 from ..robots._tangent import free_joint_of
 
@@ -213,7 +214,8 @@ def load_mapping(mapping) -> RetargetMap:
     return RetargetMap(
         root_source=_name("root.source", root["source"]), root_target=_name("root.target", root["target"]),
         sources=tuple(sources), targets=tuple(targets), feet=tuple(feet), source_up=up, auto_scale=auto,
-        given_offsets=tuple(given), sole_size=tuple(soles), calibration_frame=frame, position_weight=jnp.asarray(wp), orientation_weight=jnp.asarray(wo),
+        given_offsets=tuple(given), sole_size=tuple(soles), calibration_frame=frame,
+        position_weight=jnp.asarray(wp), orientation_weight=jnp.asarray(wo),
         offset=jnp.asarray(np.stack(offsets)), scale=jnp.asarray(scale),
     )
 
@@ -258,12 +260,11 @@ def upright(robot: Robot, mapping: RetargetMap) -> Robot:
     axis = np.cross(v / n, [0.0, 0.0, 1.0])
     angle = np.arccos(np.clip(v[2] / n, -1.0, 1.0))
     axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 1e-12 else np.array([1.0, 0.0, 0.0])
-    turn = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])  # wxyz
-    R = np.asarray(rot.quat_to_matrix(jnp.asarray(turn)), np.float64)
+    turn = quat_exp(angle * axis)  # wxyz, on the host
     a = robot.jnt_qposadr[free]
     q0 = np.asarray(robot.qpos0, np.float64).copy()
-    q0[a:a + 3] = R @ q0[a:a + 3]
-    q0[a + 3:a + 7] = np.asarray(rot.quat_multiply(jnp.asarray(turn), jnp.asarray(q0[a + 3:a + 7])), np.float64)
+    q0[a:a + 3] = quat_to_matrix(turn) @ q0[a:a + 3]
+    q0[a + 3:a + 7] = quat_mul(turn, q0[a + 3:a + 7])
     return dataclasses.replace(robot, qpos0=jnp.asarray(q0, robot.qpos0.dtype))
 
 
@@ -319,7 +320,7 @@ def _footless(robot: Robot, bodies) -> list[int]:
     return [k for k, body in enumerate(bodies) if not any(below[body, b] for b in robot.point_bodies)]
 
 
-def with_soles(robot: Robot, mapping: RetargetMap, *, warn: bool = True) -> tuple[Robot, tuple]:
+def with_soles(robot: Robot, mapping: RetargetMap) -> tuple[Robot, tuple]:
     """The robot with a footprint on each foot pair that has no collision geometry on it or below it.
 
     The footprint's four corners lie in the foot target's frame at ``(+-length / 2, +-width / 2, 0)``
@@ -337,11 +338,11 @@ def with_soles(robot: Robot, mapping: RetargetMap, *, warn: bool = True) -> tupl
     if not bare:
         return robot, ()
     root_body, root_row = target_rows(robot, (mapping.root_target,))
-    (p, R), _ = _zero_pose_feet(robot, tuple(int(b) for b in bodies) + root_body, tuple(int(r) for r in rows) + root_row,
-                                ())
+    # one pass of the zero pose: the foot targets' frames, their bodies' frames (a body's row is its index), the root
+    F, bodies = len(bodies), tuple(int(b) for b in bodies)
+    (p, R), _ = _zero_pose_feet(robot, bodies + bodies + root_body, tuple(int(r) for r in rows) + bodies + root_row, ())
     p, R = np.asarray(p, np.float64), np.asarray(R, np.float64)
-    zero = forward_kinematics(robot, robot.qpos0)
-    xpos, xmat = np.asarray(zero.xpos, np.float64), np.asarray(zero.xmat, np.float64)
+    xpos, xmat = p[F:2 * F], R[F:2 * F]
     added, defaulted = [], []
     for k in bare:
         i, body = feet[k], bodies[k]
@@ -353,9 +354,9 @@ def with_soles(robot: Robot, mapping: RetargetMap, *, warn: bool = True) -> tupl
             size = (SOLE_FRACTIONS[0] * leg, SOLE_FRACTIONS[1] * leg)
             defaulted.append(f"{mapping.targets[i]} {size[0]:.3f} x {size[1]:.3f} m")
         corners = np.array([[x * size[0] / 2, y * size[1] / 2, 0.0] for x in (-1, 1) for y in (-1, 1)])
-        in_body = (p[k] + corners @ R[k].T - xpos[body]) @ xmat[body]  # the target frame's corners in its body's
+        in_body = (p[k] + corners @ R[k].T - xpos[k]) @ xmat[k]  # the target frame's corners in its body's
         added += [(int(body), tuple(float(c) for c in point)) for point in in_body]
-    if defaulted and warn:
+    if defaulted:
         warnings.warn(f"robot {robot.name!r}: the feet {defaulted} have no collision geometry; each stands on its "
                       f'target\'s frame with a footprint of {SOLE_FRACTIONS[0]} x {SOLE_FRACTIONS[1]} of the leg length; '
                       'give the foot pair "sole": {"size": [length, width]} (m) to set it', stacklevel=3)
@@ -470,9 +471,9 @@ def _common_goals(skeleton: Skeleton, robot: Robot, pairs, p_c, p_rob, scale, ro
         between = between[between.index(body_of[anchor]) + 1:] if body_of[anchor] in between else between
         # the segment turns when a joint lies between, or one on the target's body that moves the target: a
         # site, a slide, or an origin off the joint's axis (a hinge at its body's origin leaves it in place)
-        own = [j for j, b in enumerate(robot.jnt_bodies) if b == body_of[r]]
+        own = [jnt for jnt, b in enumerate(robot.jnt_bodies) if b == body_of[r]]
         turns = any(b in jointed for b in between[:-1]) or any(
-            r >= nb or robot.jnt_types[j] == "slide" or bool(np.any(jnt_pos[j] != 0)) for j in own)
+            r >= nb or robot.jnt_types[jnt] == "slide" or bool(np.any(jnt_pos[jnt] != 0)) for jnt in own)
         cos = float(d @ v) / (n * length) if n > 0 and length > 0 else 1.0
         limit = _SAME_DIRECTION if r in pair_rows else _SAME_ANCHOR  # a hip's offset is the body's shape, not its pose
         away = moved or (turns and cos < np.cos(limit))

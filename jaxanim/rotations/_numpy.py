@@ -19,6 +19,13 @@ def quat_conj(q: np.ndarray) -> np.ndarray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def quat_exp(v: np.ndarray) -> np.ndarray:
+    """``[..., 4]`` wxyz unit quaternions of ``[..., 3]`` rotation vectors, exact at and near zero:
+    ``w = cos(a/2)``, ``xyz = v sin(a/2)/a`` with ``sin(a/2)/a = sinc(a/2pi)/2`` (NumPy's sinc)."""
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.concatenate([np.cos(0.5 * angle), v * (0.5 * np.sinc(angle / (2.0 * np.pi)))], axis=-1)
+
+
 def quat_log(q: np.ndarray) -> np.ndarray:
     """Rotation vector of unit quaternions (shortest arc)."""
     q = np.where(q[..., :1] < 0, -q, q)

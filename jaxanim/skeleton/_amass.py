@@ -53,6 +53,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._errors import JaxanimError
+from ..rotations._numpy import quat_exp, quat_mul
 from ._bvh import read_bvh
 from ._skeleton import Motion, Skeleton
 
@@ -420,20 +421,6 @@ def _clip_parts(path, archive, keys: list[str]) -> tuple[str, dict[str, tuple[st
                            "with trans [T, 3], betas and mocap_framerate or mocap_frame_rate")
 
 
-def _rotvec_to_quat(v: np.ndarray) -> np.ndarray:
-    """``[..., 3]`` rotation vectors to ``[..., 4]`` wxyz unit quaternions, exact at and near zero:
-    ``w = cos(a/2)``, ``xyz = v sin(a/2)/a`` with ``sin(a/2)/a = sinc(a/2pi)/2`` (NumPy's sinc)."""
-    angle = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.concatenate([np.cos(0.5 * angle), v * (0.5 * np.sinc(angle / (2.0 * np.pi)))], axis=-1)
-
-
-def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
 def read_amass(path: str | os.PathLike, *, body_model: str | os.PathLike | None = None,
                up: str = "y") -> tuple[Skeleton, Motion]:
     """Read an AMASS clip (SMPL+H or SMPL-X layout) with the SMPL-family body model it was fitted with.
@@ -518,10 +505,10 @@ def read_amass(path: str | os.PathLike, *, body_model: str | os.PathLike | None 
     parents = np.asarray(model.parents)
     offsets = joints - np.where(parents[:, None] >= 0, joints[np.maximum(parents, 0)], 0.0)
 
-    quats = _rotvec_to_quat(rotvecs)
+    quats = quat_exp(rotvecs)
     root = trans + joints[0]
     if up == "y":
-        quats[:, 0] = _quat_multiply(_Q_C, quats[:, 0])
+        quats[:, 0] = quat_mul(_Q_C, quats[:, 0])
         root = root @ _C.T
     translations = np.broadcast_to(offsets, (frames,) + offsets.shape).copy()
     translations[:, 0] = root
