@@ -55,10 +55,18 @@ from .. import rotations as rot
 from .._errors import JaxanimError, check_float, check_shape
 from .._linalg import own_kernel
 from .._types import Array, Float
-from ..rotations._matrices import angle_between_matrices
-from ..robots._kinematics import check_qpos, dof_columns, world_frames, mm, kinematic_plan, target_frames, target_rows
+from ..robots._kinematics import (
+    check_qpos,
+    dof_columns,
+    kinematic_plan,
+    mm,
+    target_frames,
+    target_rows,
+    world_frames,
+)
 from ..robots._robot import Robot
-from ..robots._tangent import cone_projection
+from ..robots._tangent import TangentLayout, retract_and_jacobian, tangent_difference
+from ..rotations._matrices import angle_between_matrices
 
 #: The default ``position_tolerance``: 10 micrometres (robots are in metres).
 _POSITION_TOLERANCE = 1e-5
@@ -90,21 +98,20 @@ class RobotIKSolution(eqx.Module):
 # --- static layout --------------------------------------------------------------------------------
 
 
-class TangentLayout(eqx.Module):
-    """Which dofs are variables, how each maps to qpos, and where each target sits (all static)."""
+class _Layout(eqx.Module):
+    """One problem's static structure: its variables (the robot's :class:`~jaxanim.robots._tangent.TangentLayout`
+    without the frozen joints, the one the retargeting solve uses) and where each target sits."""
 
-    var_dofs: tuple[int, ...] = eqx.field(static=True)  # the dof of each variable
-    scalar_vars: tuple[int, ...] = eqx.field(static=True)  # additive variables: positions in y
-    scalar_qadr: tuple[int, ...] = eqx.field(static=True)  # ... their qpos slots
-    scalar_joints: tuple[int, ...] = eqx.field(static=True)  # ... their joints
-    rot_vars: tuple[tuple[int, int, int], ...] = eqx.field(static=True)  # rotation blocks: positions in y
-    rot_qadr: tuple[int, ...] = eqx.field(static=True)  # ... the first qpos slot of their quaternion
-    cones: tuple[int, ...] = eqx.field(static=True)  # ... the limited ball's joint (its cone), or -1
-    bounded: bool = eqx.field(static=True)  # some variable is a limited hinge / slide
+    tangent: TangentLayout = eqx.field(static=True)
     bodies: tuple[int, ...] = eqx.field(static=True)  # per target: its body
     rows: tuple[int, ...] = eqx.field(static=True)  # per target: row in [xpos (bodies); site_xpos (sites)]
     has_pos: tuple[bool, ...] = eqx.field(static=True)
     has_ori: tuple[bool, ...] = eqx.field(static=True)
+
+    @property
+    def bounded(self) -> bool:
+        """Some variable is a limited hinge or slide."""
+        return bool(self.tangent.bounded.any())
 
 
 def _check_targets(robot: Robot, targets) -> tuple:
@@ -128,7 +135,7 @@ def _is_target(t) -> bool:
     return all(hasattr(t, a) for a in ("site", "position", "orientation", "weight")) and isinstance(t.site, str)
 
 
-def _layout(robot: Robot, targets: tuple, frozen) -> TangentLayout:
+def _layout(robot: Robot, targets: tuple, frozen) -> _Layout:
     frozen = (frozen,) if isinstance(frozen, str) else tuple(frozen)
     frozen_joints = set()
     for name in frozen:
@@ -136,28 +143,9 @@ def _layout(robot: Robot, targets: tuple, frozen) -> TangentLayout:
             frozen_joints.add(robot.joint_index(name))
         except JaxanimError as e:
             raise JaxanimError(f"frozen: {e}") from None
-    var_dofs, scalar_vars, scalar_qadr, scalar_joints, rot_vars, rot_qadr, cones = [], [], [], [], [], [], []
-    for j, ty in enumerate(robot.jnt_types):
-        if j in frozen_joints:
-            continue
-        d, a, k = robot.jnt_dofadr[j], robot.jnt_qposadr[j], len(var_dofs)
-        if ty in ("hinge", "slide"):
-            scalar_vars, scalar_qadr, scalar_joints = scalar_vars + [k], scalar_qadr + [a], scalar_joints + [j]
-            var_dofs += [d]
-        elif ty == "ball":
-            rot_vars, rot_qadr = rot_vars + [(k, k + 1, k + 2)], rot_qadr + [a]
-            cones.append(j if robot.jnt_limited[j] else -1)
-            var_dofs += [d, d + 1, d + 2]
-        else:  # free: translation (additive, world), then rotation (local)
-            scalar_vars += [k, k + 1, k + 2]
-            scalar_qadr += [a, a + 1, a + 2]
-            scalar_joints += [j] * 3
-            rot_vars, rot_qadr = rot_vars + [(k + 3, k + 4, k + 5)], rot_qadr + [a + 3]
-            cones.append(-1)
-            var_dofs += list(range(d, d + 6))
-    if not var_dofs:
+    tangent = TangentLayout(robot, tuple(sorted(frozen_joints)))
+    if not tangent.nv:
         raise JaxanimError("frozen: every joint is frozen (or the robot has none): nothing can move")
-    bounded = any(robot.jnt_limited[j] and robot.jnt_types[j] in ("hinge", "slide") for j in scalar_joints)
     bodies, rows = [], []
     for i, t in enumerate(targets):
         try:
@@ -166,11 +154,8 @@ def _layout(robot: Robot, targets: tuple, frozen) -> TangentLayout:
             raise JaxanimError(f"targets[{i}]: {str(e).removeprefix('names: ')}") from None
         bodies += [b]
         rows += [r]
-    return TangentLayout(
-        tuple(var_dofs), tuple(scalar_vars), tuple(scalar_qadr), tuple(scalar_joints), tuple(rot_vars),
-        tuple(rot_qadr), tuple(cones), bounded, tuple(bodies), tuple(rows),
-        tuple(t.position is not None for t in targets), tuple(t.orientation is not None for t in targets),
-    )
+    return _Layout(tangent, tuple(bodies), tuple(rows), tuple(t.position is not None for t in targets),
+                   tuple(t.orientation is not None for t in targets))
 
 
 # --- one problem's data, the pose map, the residual --------------------------------------------------
@@ -180,7 +165,7 @@ class _Data(eqx.Module):
     """Everything :func:`_residual` and :func:`_stop` need besides ``y``."""
 
     robot: Robot
-    layout: TangentLayout
+    layout: _Layout
     targets: tuple
     q_ref: Array  # [nq], unit quaternions
     reg_w: Array | None  # [n] lambda w_d, None: no regularizer rows
@@ -189,32 +174,17 @@ class _Data(eqx.Module):
 
 
 def _qpos(y, data: _Data):
-    """``(qpos [nq], J_rot [blocks, 3, 3])`` of the variables ``y``: limited coordinates clipped into their
-    range (which only removes rounding: the solver keeps ``y`` in the box), and a limited ball turned back
-    onto its cone where ``quat_ref ⊗ exp(delta)`` leaves it (:func:`cone_projection`). ``J_rot`` maps ``d delta`` to
-    each rotation block's local angular velocity: ``J_r(delta)``, times the cone's projection."""
-    lay, q = data.layout, data.q_ref
-    if lay.scalar_vars:
-        qa = np.asarray(lay.scalar_qadr)
-        rng = data.robot.jnt_range.astype(y.dtype)[np.asarray(lay.scalar_joints)]
-        q = q.at[qa].set(jnp.clip(q[qa] + y[np.asarray(lay.scalar_vars)], rng[:, 0], rng[:, 1]))
-    delta = y[np.asarray(lay.rot_vars, dtype=np.int32).reshape(-1, 3)]
-    J_rot = rot.right_jacobian(delta)
-    if lay.rot_vars:
-        qi = np.asarray(lay.rot_qadr)[:, None] + np.arange(4)
-        quat = rot.quat_multiply(q[qi], rot.rotvec_to_quat(delta))
-        limited = [b for b, j in enumerate(lay.cones) if j >= 0]
-        if limited:
-            ib = np.asarray(limited)
-            cone = data.robot.jnt_range.astype(y.dtype)[np.asarray([lay.cones[b] for b in limited]), 1]
-            clamped, P = cone_projection(quat[ib], cone)
-            quat = quat.at[ib].set(clamped)
-            J_rot = J_rot.at[ib].set(mm(P, J_rot[ib]))
-        q = q.at[qi].set(quat)
-    return q, J_rot
+    """``(qpos [nq], J_rot [blocks, 3, 3])`` of the variables ``y``: ``q_ref ⊕ y``
+    (:func:`~jaxanim.robots._tangent.retract_and_jacobian`): limited coordinates clipped into their range
+    (which only removes rounding: the solver keeps ``y`` in the box), a limited ball turned back onto its
+    cone where ``quat_ref ⊗ exp(delta)`` leaves it. ``J_rot`` maps ``d delta`` to each rotation block's local
+    angular velocity: ``J_r(delta)``, times the cone's projection."""
+    lay, robot = data.layout.tangent, data.robot
+    rng = robot.jnt_range.astype(y.dtype)[lay.scalar_joints]
+    return retract_and_jacobian(lay, rng, data.q_ref, y, robot.jnt_range.astype(y.dtype)[lay.cone_joints, 1])
 
 
-def _frames(robot: Robot, lay: TangentLayout, qpos, dtype):
+def _frames(robot: Robot, lay: _Layout, qpos, dtype):
     """Target points ``[K, 3]``, target frames ``[K, 3, 3]`` (body: ``xmat``; site: ``site_xmat``) and
     the kinematics they came from."""
     kin = world_frames(robot, qpos, dtype)
@@ -222,12 +192,12 @@ def _frames(robot: Robot, lay: TangentLayout, qpos, dtype):
     return points, R, kin
 
 
-def _jacobian(robot: Robot, lay: TangentLayout, kin, points, J_rot, dtype):
+def _jacobian(robot: Robot, lay: _Layout, kin, points, J_rot, dtype):
     """``(jacp, jacr)`` ``[K, 3, n]``: the geometric Jacobian columns of the variables' dofs
     (:func:`~jaxanim.robots.jacobian`'s), rotation blocks times ``J_rot`` (:func:`_qpos`)."""
-    jacp, jacr = dof_columns(robot, kin, points, lay.bodies, lay.var_dofs, dtype)
-    if lay.rot_vars:  # column d of a rotation block <- sum_c column c J_rot[c, d]
-        cols = np.asarray(lay.rot_vars)  # [nb, 3]
+    jacp, jacr = dof_columns(robot, kin, points, lay.bodies, tuple(lay.tangent.var_dofs.tolist()), dtype)
+    if lay.tangent.rot_dofs.size:  # column d of a rotation block <- sum_c column c J_rot[c, d]
+        cols = lay.tangent.rot_dofs  # [nb, 3]
         Jr = J_rot  # [nb, 3, 3]
 
         def blocks(jac):
@@ -333,23 +303,17 @@ def _solve(robot, layout, targets, qpos, reference, reg, weights, solver, ptol, 
     q0 = _normalize_quats(robot, qpos)
     q_ref = q0 if reference is None else _normalize_quats(robot, jnp.asarray(reference, dtype))
     w = jnp.ones(robot.nv, dtype) if weights is None else jnp.asarray(weights, dtype)
-    w_var = w[np.asarray(layout.var_dofs)]
+    tan = layout.tangent
+    w_var = w[tan.var_dofs]
     reg_w = None if reg is None else jnp.asarray(reg, dtype) * w_var
     data = _Data(robot, layout, targets, q_ref, reg_w, jnp.asarray(ptol, dtype), jnp.asarray(otol, dtype))
-    n = len(layout.var_dofs)
+    n = tan.nv
     # the start in the variables: additive offsets and local rotation vectors from the reference
-    y0 = jnp.zeros(n, dtype)
-    if layout.scalar_vars:
-        qa = np.asarray(layout.scalar_qadr)
-        y0 = y0.at[np.asarray(layout.scalar_vars)].set(q0[qa] - q_ref[qa])
-    if layout.rot_vars:
-        qi = np.asarray(layout.rot_qadr)[:, None] + np.arange(4)
-        d0 = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(q_ref[qi]), q0[qi]))
-        y0 = y0.at[np.asarray(layout.rot_vars)].set(d0)
+    y0 = tangent_difference(tan, q_ref, q0)
     bounds = None
     if layout.bounded:  # limited hinges / slides: range - q_ref (unlimited rows are +-inf)
-        sv, qa = np.asarray(layout.scalar_vars), np.asarray(layout.scalar_qadr)
-        rng = robot.jnt_range.astype(dtype)[np.asarray(layout.scalar_joints)]
+        sv, qa = tan.scalar_dofs, tan.scalar_q
+        rng = robot.jnt_range.astype(dtype)[tan.scalar_joints]
         lower = jnp.full(n, -jnp.inf, dtype).at[sv].set(rng[:, 0] - q_ref[qa])
         upper = jnp.full(n, jnp.inf, dtype).at[sv].set(rng[:, 1] - q_ref[qa])
         bounds = (lower, upper)
