@@ -21,15 +21,30 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     from ..skeleton import read_clip  # noqa: PLC0415
     from ._retarget_clip import retarget_arrays  # noqa: PLC0415
 
-    out = pathlib.Path(args.out)
-    if out.suffix != ".npz":
-        raise JaxanimError(f"--out {args.out}: expected a .npz file")
+    if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
+        raise JaxanimError(f"--fps {args.fps}: expected a positive frame rate")
+    if args.fps is not None and args.format == "npz":
+        raise JaxanimError("--fps: the npz format keeps the source's frame rate (its diagnostics are per source "
+                           "frame); resample with --format csv, beyondmimic or gmr")
+    if args.csv_header and args.format != "csv":
+        raise JaxanimError(f"--csv-header: only with --format csv (not {args.format})")
+    sources = list(args.source)
+    if len(sources) > 1 or (sources and pathlib.Path(sources[0]).is_dir()):
+        from ._retarget_dataset import run_dataset  # noqa: PLC0415
+
+        if args.out is None:
+            raise JaxanimError("--out: with several sources or a folder, give the output folder")
+        return run_dataset(args, ui, sources)
+    suffix = retargeting.format_suffix(args.format)
+    out = pathlib.Path(args.out or "retarget" + suffix)
+    if out.suffix != suffix:
+        raise JaxanimError(f"--out {out}: expected a {suffix} file for --format {args.format}")
     if args.render is not None and pathlib.Path(args.render).suffix not in (".gif", ".mp4"):
         raise JaxanimError(f"--render {args.render}: expected a .gif or .mp4 file")
     dtype = "float32" if args.float32 else "float64"
     robot_path = args.robot or robots.default_robot_path()
     map_path = args.map or retargeting.default_mapping_path()
-    source = args.source
+    source = sources[0] if sources else None
     if source is None:
         from ..skeleton import default_clip_path  # noqa: PLC0415
         source = default_clip_path()
@@ -62,10 +77,17 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     # FK of every frame (positions, rotations), the source in the robot's frame, the geometry, the diagnostics
     arrays = retarget_arrays(skeleton, motion, robot, problem, res, robot_path=robot_path, source=source,
                              map_path=map_path)
+    arrays["qvel"] = retargeting.qvel_from_qpos(robot, arrays["qpos"], float(res.fps))
     bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
     if bad:
         raise JaxanimError(f"non-finite values in {bad}; nothing written")
-    np.savez(out, **arrays)
+    if args.format == "npz":
+        np.savez(out, **arrays)
+    else:
+        fps = float(res.fps)
+        qpos = qpos if args.fps is None else retargeting.resample_qpos(robot, qpos, fps, args.fps)
+        retargeting.write_motion(out, robot, qpos, fps if args.fps is None else float(args.fps), args.format,
+                                 csv_header=bool(args.csv_header))
     ui.result(f"wrote {out}: {T} frames of {robot.name} ({robot.nq} qpos) at {float(res.fps):g} fps in "
               f"{_duration(seconds)} (compile included); status: "
               f"{'successful' if bool(res.success) else res.result}")
@@ -75,26 +97,44 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
               f"matching error {1e3 * s['matching_error']:.1f} mm, jitter {s['jitter']:.2f} rad/s^2")
     if args.render is not None:
         from ._render import render_retarget  # noqa: PLC0415 (matplotlib is an optional extra)
-        render_retarget(out, args.render, ui=ui)
+        render_retarget(arrays, args.render, ui=ui)
         ui.result(f"wrote {args.render}")
     return 0 if bool(res.success) else 1
 
 
 def add_retarget_parser(sub, common) -> None:
-    p = sub.add_parser("retarget", parents=[common], help="retarget a BVH clip onto a robot (MJCF or URDF), feet planted",
-                       description="Retarget a BVH clip onto a robot (jaxanim.retargeting.retarget, needs jaxanim[robots]): "
-                                   "one least-squares problem over the whole clip, joint ranges as hard bounds, the "
-                                   "feet planted in the source's stance phases. Writes qpos [T, nq], fps, joint and "
-                                   "body names and the per-frame diagnostics to OUT.npz, and prints the foot slide, "
-                                   "penetration, limit hits and matching error. Defaults: the shipped walk, humanoid "
-                                   "and map.")
-    p.add_argument("source", nargs="?", metavar="SOURCE.bvh", help="the clip (default: the shipped walk)")
+    p = sub.add_parser("retarget", parents=[common], help="retarget clips or whole datasets onto a robot (MJCF or "
+                       "URDF), feet planted",
+                       description="Retarget BVH or AMASS clips onto a robot (jaxanim.retargeting.retarget, needs "
+                                   "jaxanim[robots]): one least-squares problem over each whole clip, joint ranges as "
+                                   "hard bounds, the feet planted in the source's stance phases. One clip writes "
+                                   "OUT (qpos [T, nq], qvel [T, nv], fps, joint and body names and the per-frame "
+                                   "diagnostics in the npz format) and prints the foot slide, penetration, limit hits "
+                                   "and matching error. Several sources or a folder (searched recursively for .bvh "
+                                   "and .npz) write into the folder OUT, one file per clip at its path relative to "
+                                   "its source folder, with OUT/manifest.csv (a row per clip, failed ones included) "
+                                   "and OUT/manifest.png; clips already done with the same source, robot, map and "
+                                   "options are skipped, and the exit status is 1 if any clip failed. Defaults: the "
+                                   "shipped walk, humanoid and map.")
+    p.add_argument("source", nargs="*", metavar="SOURCE", help="clips (.bvh, AMASS .npz) or folders of them "
+                   "(default: the shipped walk)")
     p.add_argument("--robot", metavar="ROBOT.xml|ROBOT.urdf", help="the robot (default: the shipped humanoid)")
     p.add_argument("--map", metavar="MAP.json|auto", help="the retargeting map (default: the shipped walk's), or "
                    "'auto' to find it from the clip's and the robot's shapes (retargeting.auto_map, the map "
                    "that `jaxanim retarget-map` writes)")
-    p.add_argument("--out", "-o", default="retarget.npz", metavar="OUT.npz", help="output (default retarget.npz)")
-    p.add_argument("--render", metavar="OUT.gif", help="also draw the robot beside its source (GIF or MP4)")
+    p.add_argument("--out", "-o", metavar="OUT", help="the output file (default retarget.npz, or the format's "
+                   "suffix), or with several sources or a folder the output folder")
+    p.add_argument("--format", default="npz", choices=("npz", "csv", "beyondmimic", "gmr"),
+                   help="npz: jaxanim's (qpos, qvel, FK, diagnostics); csv: a row per frame, root position, root "
+                   "quaternion x y z w, joint angles (the LAFAN1 retargeting CSVs of mjlab and BeyondMimic); "
+                   "beyondmimic: the motion .npz of mjlab and whole_body_tracking; gmr: GMR's pickle")
+    p.add_argument("--fps", type=float, metavar="F", help="resample the output to F frames per second, rotations "
+                   "slerped (csv, beyondmimic, gmr)")
+    p.add_argument("--csv-header", action="store_true", help="a header row of column names in the csv")
+    p.add_argument("--overwrite", action="store_true", help="redo the clips whose output is up to date")
+    p.add_argument("--batch", type=int, default=8, help="clips solved together in one vmap, per bucket of "
+                   "lengths (default 8)")
+    p.add_argument("--render", metavar="OUT.gif", help="also draw the robot beside its source (GIF or MP4; one clip)")
     p.add_argument("--iterations", type=int, default=200, help="the most Levenberg-Marquardt iterations; the solve "
                    "stops once converged (default 200)")
     p.add_argument("--fixed-base", action="store_true", help="the robot really is fixed: refuse it when its root "

@@ -1,0 +1,113 @@
+"""``jaxanim retarget FOLDER --out OUT``: a dataset in one command (issue 59): an output and a manifest row per
+clip, the corrupted file named and the exit status 1, a second run that skips everything, the trainers' formats
+from the same command. The clips are short trims of the shipped walk onto the shipped humanoid, all in one
+bucket (one compiled solve)."""
+
+from __future__ import annotations
+
+import csv
+import pathlib
+import time
+
+import jaxanim
+import numpy as np
+import pytest
+from jaxanim.app._retarget_dataset import bucket_length, find_clips
+
+pytest.importorskip("mujoco", reason="retargeting loads robots through MuJoCo (jaxanim[robots])")
+
+
+def test_buckets_hold_each_length_with_at_most_half_again():
+    lengths = [bucket_length(n) for n in range(1, 5000)]
+    assert lengths[:32] == [32] * 32 and bucket_length(33) == 48 and bucket_length(49) == 64
+    assert sorted(set(lengths))[:8] == [32, 48, 64, 96, 128, 192, 256, 384]
+    n = np.arange(33, 5000)
+    assert np.all(np.asarray(lengths[32:]) >= n) and np.all(np.asarray(lengths[32:]) <= 1.5 * n)
+
+
+def test_find_clips_keeps_the_relative_paths_and_refuses_a_collision(tmp_path):
+    (tmp_path / "a" / "deep").mkdir(parents=True)
+    for f in ("a/x.bvh", "a/deep/y.npz", "a/notes.txt", "z.bvh"):
+        (tmp_path / f).write_text("")
+    out = tmp_path / "out"
+    clips = find_clips([tmp_path / "a", tmp_path / "z.bvh"], out, ".csv")
+    assert [(c.name, c.output.relative_to(out).as_posix()) for c in clips] == [
+        ("deep/y.npz", "deep/y.csv"), ("x.bvh", "x.csv"), ("z.bvh", "z.csv")]
+    (tmp_path / "a" / "z.bvh").write_text("")
+    with pytest.raises(jaxanim.JaxanimError, match="would both write"):
+        find_clips([tmp_path / "a", tmp_path / "z.bvh"], out, ".csv")
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """A folder of three trims of the walk (24, 28 and 30 frames: one bucket), one in a subfolder, and a
+    corrupted BVH."""
+    skel, walk = jaxanim.read_bvh(jaxanim.default_clip_path())[:2]
+    root = tmp_path_factory.mktemp("clips")
+    (root / "sub").mkdir()
+    for name, (a, b) in {"walk_a.bvh": (0, 24), "sub/walk_b.bvh": (10, 38), "walk_c.bvh": (20, 50)}.items():
+        clip = jaxanim.Motion(walk.rotations[a:b], walk.translations[a:b], walk.frame_time)
+        jaxanim.write_bvh(root / name, skel, clip)
+    (root / "broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0\n")
+    return root
+
+
+def _manifest(path: pathlib.Path) -> dict[str, dict]:
+    with open(path, newline="") as f:
+        return {r["source"]: r for r in csv.DictReader(f)}
+
+
+def test_a_folder_writes_every_good_clip_names_the_broken_one_and_resumes(dataset, tmp_path, capsys):
+    from jaxanim.app import main
+
+    out = tmp_path / "out"
+    args = ["--no-compile-cache", "retarget", str(dataset), "--out", str(out), "--batch", "2"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "broken.bvh" in err
+    rows = _manifest(out / "manifest.csv")
+    assert sorted(rows) == ["broken.bvh", "sub/walk_b.bvh", "walk_a.bvh", "walk_c.bvh"]
+    assert rows["broken.bvh"]["status"] == "failed" and "broken.bvh" in rows["broken.bvh"]["error"]
+    assert not (out / "broken.npz").exists()
+    for name, frames in (("walk_a", 24), ("sub/walk_b", 28), ("walk_c", 30)):
+        row = rows[name + ".bvh"]
+        assert row["status"] == "successful", row
+        assert int(row["frames"]) == frames and float(row["fps"]) == pytest.approx(1 / 0.033333, rel=1e-4)
+        assert float(row["foot_slide"]) <= 1e-3 and float(row["penetration"]) <= 1e-3
+        assert float(row["range_violation"]) <= 1e-6
+        with np.load(out / (name + ".npz")) as data:
+            assert data["qpos"].shape[0] == data["qvel"].shape[0] == data["body_positions"].shape[0] == frames
+            assert np.all(np.isfinite(data["qpos"]))
+        assert len(row["sha256"]) == 64
+    assert (out / "manifest.png").stat().st_size > 0
+    # a second run skips every good clip within seconds, and the broken one fails again
+    stamp = (out / "walk_a.npz").stat().st_mtime_ns
+    t0 = time.perf_counter()
+    assert main(args) == 1
+    assert time.perf_counter() - t0 < 10.0
+    assert (out / "walk_a.npz").stat().st_mtime_ns == stamp
+    assert "3 retargeted or up to date (3 skipped)" in capsys.readouterr().out
+    assert _manifest(out / "manifest.csv")["walk_a.bvh"] == rows["walk_a.bvh"]
+
+
+def test_formats_from_the_dataset_command(dataset, tmp_path, capsys):
+    """The same folder into the trainers' formats (the solve's program is the previous test's)."""
+    from jaxanim.app import main
+
+    out = tmp_path / "bm"
+    code = main(["--no-compile-cache", "retarget", str(dataset / "walk_a.bvh"), str(dataset / "sub"), "--out",
+                 str(out), "--batch", "2", "--format", "beyondmimic", "--fps", "60"])
+    assert code == 0, capsys.readouterr().err
+    with np.load(out / "walk_a.npz") as bm:
+        assert bm["fps"].tolist() == [60.0] and bm["joint_pos"].shape[0] == 47  # 24 frames at 30 fps, resampled
+    assert (out / "walk_b.npz").exists()
+    code = main(["--no-compile-cache", "retarget", str(dataset / "walk_a.bvh"), str(dataset / "walk_c.bvh"),
+                 "--out", str(tmp_path / "csv"), "--batch", "2", "--format", "csv"])
+    assert code == 0
+    rows = np.loadtxt(tmp_path / "csv" / "walk_a.csv", delimiter=",")
+    assert rows.shape[0] == 24 and np.allclose(np.linalg.norm(rows[:, 3:7], axis=1), 1.0)
+    capsys.readouterr()
+    assert main(["retarget", str(dataset), "--out", str(tmp_path / "x"), "--format", "bvh"]) != 0
+    assert "--format" in capsys.readouterr().err
+    assert main(["retarget", str(dataset), "--out", str(tmp_path / "x.npz")]) != 0
+    assert "--out" in capsys.readouterr().err
