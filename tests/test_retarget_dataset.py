@@ -1,12 +1,13 @@
 """``jaxanim retarget FOLDER --out OUT``: a dataset in one command (issue 59): an output and a manifest row per
-clip, the corrupted file named and the exit status 1, a second run that skips everything, the trainers' formats
-from the same command. The clips are short trims of the shipped walk onto the shipped humanoid, all in one
+clip, the corrupted file named and the exit status 1, a second run that skips everything, ``--map auto`` over
+BVH dialects, the trainers' formats from the same command. The clips are short trims of the shipped walk onto the shipped humanoid, all in one
 bucket (one compiled solve)."""
 
 from __future__ import annotations
 
 import csv
 import pathlib
+import re
 import time
 
 import jaxanim
@@ -38,16 +39,27 @@ def test_find_clips_keeps_the_relative_paths_and_refuses_a_collision(tmp_path):
         find_clips([tmp_path / "a", tmp_path / "z.bvh"], out, ".csv")
 
 
+def _dialect(text: str, renames: dict, prefix: str) -> str:
+    """A BVH's text with its joints renamed (``renames``, then ``prefix`` on every name)."""
+    def name(m):
+        return f"{m.group(1)} {prefix}{renames.get(m.group(2), m.group(2))}"
+    return re.sub(r"^(\s*(?:ROOT|JOINT)) (\S+)", name, text, flags=re.M)
+
+
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    """A folder of three trims of the walk (24, 28 and 30 frames: one bucket), one in a subfolder, and a
-    corrupted BVH."""
+    """A folder of three trims of the walk (24, 28 and 30 frames: one bucket) in three dialects: the shipped
+    names, LAFAN1's (in a subfolder) and Mixamo's, and a corrupted BVH."""
     skel, walk = jaxanim.read_bvh(jaxanim.default_clip_path())[:2]
     root = tmp_path_factory.mktemp("clips")
     (root / "sub").mkdir()
+    dialects = {"walk_a.bvh": ({}, ""), "sub/walk_b.bvh": ({"Chest": "Spine2", "LeftToeBase": "LeftToe",
+                                                             "RightToeBase": "RightToe"}, ""),
+                "walk_c.bvh": ({"Chest": "Spine2"}, "mixamorig:")}
     for name, (a, b) in {"walk_a.bvh": (0, 24), "sub/walk_b.bvh": (10, 38), "walk_c.bvh": (20, 50)}.items():
         clip = jaxanim.Motion(walk.rotations[a:b], walk.translations[a:b], walk.frame_time)
         jaxanim.write_bvh(root / name, skel, clip)
+        (root / name).write_text(_dialect((root / name).read_text(), *dialects[name]))
     (root / "broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0\n")
     return root
 
@@ -58,10 +70,11 @@ def _manifest(path: pathlib.Path) -> dict[str, dict]:
 
 
 def test_a_folder_writes_every_good_clip_names_the_broken_one_and_resumes(dataset, tmp_path, capsys):
+    """``--map auto`` over three dialects: a map per skeleton, the same robot program for all."""
     from jaxanim.app import main
 
     out = tmp_path / "out"
-    args = ["--no-compile-cache", "retarget", str(dataset), "--out", str(out), "--batch", "2"]
+    args = ["--no-compile-cache", "retarget", str(dataset), "--out", str(out), "--batch", "2", "--map", "auto"]
     assert main(args) == 1
     err = capsys.readouterr().err
     assert "broken.bvh" in err
@@ -96,13 +109,13 @@ def test_formats_from_the_dataset_command(dataset, tmp_path, capsys):
 
     out = tmp_path / "bm"
     code = main(["--no-compile-cache", "retarget", str(dataset / "walk_a.bvh"), str(dataset / "sub"), "--out",
-                 str(out), "--batch", "2", "--format", "beyondmimic", "--fps", "60"])
+                 str(out), "--batch", "2", "--format", "beyondmimic", "--fps", "60", "--map", "auto"])
     assert code == 0, capsys.readouterr().err
     with np.load(out / "walk_a.npz") as bm:
         assert bm["fps"].tolist() == [60.0] and bm["joint_pos"].shape[0] == 47  # 24 frames at 30 fps, resampled
     assert (out / "walk_b.npz").exists()
     code = main(["--no-compile-cache", "retarget", str(dataset / "walk_a.bvh"), str(dataset / "walk_c.bvh"),
-                 "--out", str(tmp_path / "csv"), "--batch", "2", "--format", "csv"])
+                 "--out", str(tmp_path / "csv"), "--batch", "2", "--format", "csv", "--map", "auto"])
     assert code == 0
     rows = np.loadtxt(tmp_path / "csv" / "walk_a.csv", delimiter=",")
     assert rows.shape[0] == 24 and np.allclose(np.linalg.norm(rows[:, 3:7], axis=1), 1.0)
