@@ -5,7 +5,9 @@ bucket (one compiled solve)."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import pathlib
 import re
 import time
@@ -69,14 +71,25 @@ def _manifest(path: pathlib.Path) -> dict[str, dict]:
         return {r["source"]: r for r in csv.DictReader(f)}
 
 
-def test_a_folder_writes_every_good_clip_names_the_broken_one_and_resumes(dataset, tmp_path, capsys):
+@pytest.fixture(scope="module")
+def first_run(dataset, tmp_path_factory):
+    """The dataset's first run: ``(arguments, output folder, exit status, stderr)``."""
+    from jaxanim.app import main
+
+    out = tmp_path_factory.mktemp("first") / "out"
+    args = ["--no-compile-cache", "retarget", str(dataset), "--out", str(out), "--batch", "2", "--map", "auto"]
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(args)
+    return args, out, code, err.getvalue()
+
+
+def test_a_folder_writes_every_good_clip_names_the_broken_one_and_resumes(first_run, capsys):
     """``--map auto`` over three dialects: a map per skeleton, the same robot program for all."""
     from jaxanim.app import main
 
-    out = tmp_path / "out"
-    args = ["--no-compile-cache", "retarget", str(dataset), "--out", str(out), "--batch", "2", "--map", "auto"]
-    assert main(args) == 1
-    err = capsys.readouterr().err
+    args, out, code, err = first_run
+    assert code == 1
     assert "broken.bvh" in err
     rows = _manifest(out / "manifest.csv")
     assert sorted(rows) == ["broken.bvh", "sub/walk_b.bvh", "walk_a.bvh", "walk_c.bvh"]
@@ -124,3 +137,32 @@ def test_formats_from_the_dataset_command(dataset, tmp_path, capsys):
     assert "--format" in capsys.readouterr().err
     assert main(["retarget", str(dataset), "--out", str(tmp_path / "x.npz")]) != 0
     assert "--out" in capsys.readouterr().err
+
+
+def test_two_processes_share_the_clips_and_merge_the_manifest(dataset, first_run, tmp_path):
+    """``--coordinator/--num-processes/--process-id``: two processes on localhost (the pattern of
+    tests/test_distributed.py), a clip each; process 0 merges the parts; the clips equal the one-process run's."""
+    import shutil
+    import sys
+
+    from benchmarks.scaling import check_processes, free_port, run_processes, subprocess_env
+
+    folder = tmp_path / "two"
+    (folder / "sub").mkdir(parents=True)
+    for name in ("walk_a.bvh", "sub/walk_b.bvh"):
+        shutil.copy(dataset / name, folder / name)
+    out, port = tmp_path / "out2", free_port()
+    argvs = [[sys.executable, "-m", "jaxanim", "--no-compile-cache", "retarget", str(folder), "--out", str(out),
+              "--batch", "2", "--map", "auto", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
+              "--process-id", str(i)] for i in range(2)]
+    results = run_processes(argvs, env=subprocess_env(), timeout_s=240.0)
+    check_processes(results, "jaxanim retarget on two processes")
+    assert "process 1 of 2: 1 clips, 0 failed" in results[1].stdout
+    rows = _manifest(out / "manifest.csv")
+    assert sorted(rows) == ["sub/walk_b.bvh", "walk_a.bvh"] and all(r["status"] == "successful" for r in rows.values())
+    assert not list(out.glob("manifest.part-*"))
+    assert (out / "manifest.png").exists()
+    one = first_run[1]  # the same clips in one process
+    for name in ("walk_a.npz", "sub/walk_b.npz"):
+        with np.load(out / name) as a, np.load(one / name) as b:
+            np.testing.assert_allclose(a["qpos"], b["qpos"], atol=1e-9)

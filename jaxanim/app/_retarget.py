@@ -29,12 +29,19 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     if args.csv_header and args.format != "csv":
         raise JaxanimError(f"--csv-header: only with --format csv (not {args.format})")
     sources = list(args.source)
+    distributed = args.distributed or any(a is not None for a in (args.coordinator, args.num_processes,
+                                                                  args.process_id))
     if len(sources) > 1 or (sources and pathlib.Path(sources[0]).is_dir()):
         from ._retarget_dataset import run_dataset  # noqa: PLC0415
 
         if args.out is None:
             raise JaxanimError("--out: with several sources or a folder, give the output folder")
+        if distributed:
+            _initialize_distributed(args)
         return run_dataset(args, ui, sources)
+    if distributed:
+        raise JaxanimError("--distributed: shares the clips of a dataset (several sources or a folder) among "
+                           "processes; give one of those")
     suffix = retargeting.format_suffix(args.format)
     out = pathlib.Path(args.out or "retarget" + suffix)
     if out.suffix != suffix:
@@ -102,6 +109,22 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     return 0 if bool(res.success) else 1
 
 
+def _initialize_distributed(args: argparse.Namespace) -> None:
+    """``jax.distributed.initialize``: from ``--coordinator``, ``--num-processes`` and ``--process-id`` (all three),
+    or with none of them from JAX's own cluster detection (SLURM, Open MPI, Kubernetes, ...)."""
+    given = (args.coordinator, args.num_processes, args.process_id)
+    if any(a is not None for a in given) and not all(a is not None for a in given):
+        raise JaxanimError("--coordinator, --num-processes, --process-id: give all three, or none with "
+                           "--distributed on a cluster that JAX detects")
+    if all(a is not None for a in given):
+        if not 0 <= args.process_id < args.num_processes:
+            raise JaxanimError(f"--process-id {args.process_id}: expected 0 to {args.num_processes - 1}")
+        jax.distributed.initialize(coordinator_address=args.coordinator, num_processes=args.num_processes,
+                                   process_id=args.process_id)
+    else:
+        jax.distributed.initialize()
+
+
 def add_retarget_parser(sub, common) -> None:
     p = sub.add_parser("retarget", parents=[common], help="retarget clips or whole datasets onto a robot (MJCF or "
                        "URDF), feet planted",
@@ -134,6 +157,12 @@ def add_retarget_parser(sub, common) -> None:
     p.add_argument("--overwrite", action="store_true", help="redo the clips whose output is up to date")
     p.add_argument("--batch", type=int, default=8, help="clips solved together in one vmap, per bucket of "
                    "lengths (default 8)")
+    p.add_argument("--distributed", action="store_true", help="a dataset over several processes under "
+                   "jax.distributed, each taking its share of the clips (the cluster found by JAX: SLURM, Open MPI, "
+                   "...; or --coordinator, --num-processes, --process-id); process 0 merges the manifest")
+    p.add_argument("--coordinator", metavar="HOST:PORT", help="jax.distributed's coordinator (process 0's address)")
+    p.add_argument("--num-processes", type=int, metavar="N", help="the number of processes")
+    p.add_argument("--process-id", type=int, metavar="K", help="this process's index, 0 to N-1")
     p.add_argument("--render", metavar="OUT.gif", help="also draw the robot beside its source (GIF or MP4; one clip)")
     p.add_argument("--iterations", type=int, default=200, help="the most Levenberg-Marquardt iterations; the solve "
                    "stops once converged (default 200)")

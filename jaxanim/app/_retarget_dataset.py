@@ -19,6 +19,11 @@ The run:
   the source, ``robot``, ``map`` and ``options``; ``--overwrite`` redoes it;
 * **failures** (an unreadable file, NaN, a solve that did not converge) are rows with ``status`` and
   ``error``; the others go on, and the exit status is 1 if any clip failed;
+* **processes**: under ``jax.distributed`` (``--distributed``, or ``--coordinator``,
+  ``--num-processes`` and ``--process-id``) process ``k`` of ``n`` takes clips ``k, k + n, ...`` of the
+  sorted list and writes ``OUT/manifest.part-k-of-n.csv``; once every process has finished, process 0
+  merges the parts into ``manifest.csv`` and draws the picture (a part left by an interrupted run is
+  read as rows of the previous run);
 * **the picture** ``OUT/manifest.png``: the per-clip distributions of foot slide, penetration,
   jitter and matching error, the outliers named (needs ``jaxanim[plot]``).
 """
@@ -50,6 +55,9 @@ MANIFEST_COLUMNS = ("source", "sha256", "frames", "fps", "status", "seconds", "f
 _MEASURES = ("foot_slide", "penetration", "range_violation", "matching_error", "orientation_error", "jitter")
 #: The files a folder is searched for.
 CLIP_SUFFIXES = (".bvh", ".npz")
+#: A process's part of the manifest under ``jax.distributed`` (merged into ``manifest.csv`` by process 0).
+_PART = "manifest.part-{index:04d}-of-{count:04d}.csv"
+_PART_GLOB = "manifest.part-*-of-*.csv"
 #: The smallest bucket; the others grow by 3/2 and 4/3 in turn (32, 48, 64, 96, 128, ...).
 _SMALLEST_BUCKET = 32
 
@@ -183,6 +191,12 @@ def run_dataset(args: argparse.Namespace, ui: _UI, sources: list[str]) -> int:
                              "body_model": args.body_model}, sort_keys=True)
     manifest = out / "manifest.csv"
     previous = read_manifest(manifest)
+    for part in sorted(out.glob(_PART_GLOB)):  # an interrupted distributed run's rows
+        previous.update(read_manifest(part))
+    processes, index = jax.process_count(), jax.process_index()
+    everything = clips
+    clips = clips[index::processes]  # this process's share of the sorted list
+    own = out / _PART.format(index=index, count=processes) if processes > 1 else manifest
     rows: dict[str, dict] = {}
     failed: list[str] = []
     maps: dict[str, object] = {}
@@ -230,7 +244,7 @@ def run_dataset(args: argparse.Namespace, ui: _UI, sources: list[str]) -> int:
                 row.update(status="failed", error=str(exc))
             row["seconds"] = g["seconds"] + share + time.perf_counter() - t1
             record(g["clip"], row)
-        write_manifest(manifest, {**previous, **rows})
+        write_manifest(own, {**previous, **rows} if own == manifest else rows)
 
     batcher = _Batcher(robot, options, args.batch, solve)
     quiet, skipped = _Collect(), 0
@@ -272,14 +286,34 @@ def run_dataset(args: argparse.Namespace, ui: _UI, sources: list[str]) -> int:
             batcher.add(key, {"clip": clip, "row": row, "problem": problem, "robot": prepared, "skeleton": skeleton,
                               "motion": motion, "seconds": time.perf_counter() - t0})
         batcher.flush()
-    write_manifest(manifest, {**previous, **rows})
     for message in sorted(quiet.messages):
         ui.warning(message)
-    done = len(clips) - len(failed)
-    ui.result(f"wrote {manifest}: {len(clips)} clips, {done} retargeted or up to date ({skipped} skipped), "
-              f"{len(failed)} failed, in {time.perf_counter() - started:.1f} s")
+    if processes > 1:  # every process's part, merged by process 0 once all have finished
+        write_manifest(own, rows)
+        from jax.experimental import multihost_utils  # noqa: PLC0415
+
+        multihost_utils.sync_global_devices("jaxanim retarget: manifest parts written")
+        if index:
+            ui.result(f"process {index} of {processes}: {len(clips)} clips, {len(failed)} failed; process 0 "
+                      f"writes {manifest}")
+            return 1 if failed else 0
+        parts = [out / _PART.format(index=i, count=processes) for i in range(processes)]
+        for part in parts:
+            rows.update(read_manifest(part))
+        write_manifest(manifest, {**previous, **rows})
+        for part in out.glob(_PART_GLOB):
+            part.unlink()
+        failed = [c.name for c in everything if rows.get(c.name, {}).get("status") != "successful"]
+        skipped = sum(1 for c in everything if c.name in previous and rows.get(c.name) == previous[c.name]
+                      and previous[c.name].get("status") == "successful")  # rows read back: strings alike
+    else:
+        write_manifest(manifest, {**previous, **rows})
+    done = len(everything) - len(failed)
+    ui.result(f"wrote {manifest}: {len(everything)} clips, {done} retargeted or up to date ({skipped} skipped), "
+              f"{len(failed)} failed, in {time.perf_counter() - started:.1f} s"
+              + (f" ({processes} processes)" if processes > 1 else ""))
     for name in failed:
-        ui.error(f"{name}: {rows[name].get('error', rows[name].get('status'))}")
+        ui.error(f"{name}: {rows.get(name, {}).get('error', rows.get(name, {}).get('status'))}")
     picture = out / "manifest.png"
     try:
         manifest_picture({**previous, **rows}, picture)
