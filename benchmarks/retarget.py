@@ -19,6 +19,7 @@ from jaxanim.skeleton import Motion, resample_at
 
 from .peers import mink_retarget as mr
 from .report import Row, Table, Target, sel
+from .retarget_dataset import DatasetSizes, dataset_table
 from .timing import Runner, status_counts
 
 __all__ = ["ACCELERATOR_SIZES", "RetargetSizes", "clip_problems", "run_retarget"]
@@ -214,8 +215,14 @@ def _versus_mink(measured) -> list[str]:
     return lines
 
 
-def run_retarget(config, sizes: RetargetSizes | None = None) -> list[Table]:
-    """The ``retarget`` benchmark (see the module docstring); ``sizes`` shrinks it for tests."""
+def run_retarget(config, sizes: RetargetSizes | None = None, dataset: DatasetSizes | None = None) -> list[Table]:
+    """The ``retarget`` benchmark (see the module docstring) and its end-to-end dataset table
+    (:mod:`benchmarks.retarget_dataset`); ``sizes`` and ``dataset`` shrink them for tests."""
     sz = sizes or config.pick(RetargetSizes(), accelerator=ACCELERATOR_SIZES,
                               quick=RetargetSizes(frames=30, batches=(1, 2)))
-    return [_table(config, sz)]
+    ds = dataset or config.pick(DatasetSizes(), quick=DatasetSizes(clips=4, min_frames=30, max_frames=60))
+    tables = [_table(config, sz)]
+    path = config.data_file("robots/unitree_g1/g1.xml")
+    if isinstance(path, str):
+        return tables + [Table("retarget_dataset", "Retargeting a dataset end to end", skipped=path)]
+    return tables + [dataset_table(config, path, ds)]
