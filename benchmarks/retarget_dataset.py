@@ -32,7 +32,7 @@ import numpy as np
 from .report import Row, Table, Target, sel
 from .timing import Timing
 
-__all__ = ["DatasetSizes", "dataset_table", "run_mink_dataset", "write_dataset"]
+__all__ = ["DatasetSizes", "dataset_table", "mink_targets", "run_mink_dataset", "write_dataset"]
 
 _JAX_COLD = "jaxanim retarget FOLDER (empty compilation cache)"
 _JAX_WARM = "jaxanim retarget FOLDER (warm cache, --overwrite)"
