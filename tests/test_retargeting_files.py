@@ -299,3 +299,15 @@ def test_cli_retargets_the_v2020_walker_that_lies_in_its_zero_pose(tmp_path, cap
     violation = re.search(r"joint-range violation ([\d.e+-]+),", captured.out)
     _check_clip({"foot_slide": float(slide[1]) * 1e-3, "penetration": float(slide[2]) * 1e-3,
                  "range_violation": float(violation[1])})
+
+
+def test_retarget_map_prints_a_urdfs_missing_meshes_as_a_warning(tmp_path, capsys):
+    """``jaxanim retarget-map --robot romeo_small.urdf``: the meshes that are not shipped are one warning line
+    on stderr (not a Python warning), and the map is written."""
+    from jaxanim.app import main
+
+    out = tmp_path / "romeo.json"
+    assert main(["--no-compile-cache", "retarget-map", "--robot", str(_romeo_path()), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "collision mesh" in err
+    assert json.loads(out.read_text())["root"]["target"]

@@ -9,7 +9,7 @@ import json
 import pathlib
 
 from .._errors import JaxanimError
-from ._common import _UI
+from ._common import _UI, _warnings_to
 
 
 def _format_map(mapping: dict) -> str:
@@ -29,8 +29,9 @@ def _cmd_retarget_map(args: argparse.Namespace, ui: _UI) -> int:
     robot_path = args.robot or robots.default_robot_path()
     source = args.source or default_clip_path()
     skeleton, _ = read_clip(source, body_model=args.body_model)
-    robot = robots.load_robot(robot_path)
-    mapping = retargeting.auto_map_dict(skeleton, robot)
+    with _warnings_to(ui):  # a URDF's missing meshes, one line each
+        robot = robots.load_robot(robot_path)
+        mapping = retargeting.auto_map_dict(skeleton, robot)
     out.write_text(_format_map(mapping), encoding="utf-8")
     ui.result(f"wrote {out}: {skeleton.num_joints} joints of {pathlib.Path(source).name} onto {robot.name} "
               f"(root {mapping['root']['source']} -> {mapping['root']['target']}, source up {mapping['source_up']})")
