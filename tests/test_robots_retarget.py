@@ -369,6 +369,8 @@ def test_bad_input_is_named(walk):
              "pairs": [{"source": "LeftFoot", "target": "l_ankle", "foot": True}]}
     with pytest.raises(jaxanim.JaxanimError, match=r"not moved by a free joint and fixed_base=True \(--fixed-base\)"):
         retargeting.prepare_retarget(skel, motion, fixed, romeo, fixed_base=True)
+    with pytest.raises(jaxanim.JaxanimError, match=r"motions\[0\]: .*fixed_base=True"):  # a batch alike
+        retargeting.retarget_clips(skel, [motion], fixed, romeo, fixed_base=True)
     with pytest.raises(jaxanim.JaxanimError, match="options.plant_weight"):
         retargeting.retarget(skel, motion, robot, retargeting.default_mapping_path(),
                         options=retargeting.RetargetOptions(plant_weight=-1.0))

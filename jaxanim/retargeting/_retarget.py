@@ -92,13 +92,14 @@ def retarget_clips(
     mapping: RetargetMap | str | dict,
     *,
     options: RetargetOptions | None = None,
+    fixed_base: bool = False,
 ) -> list[RetargetResult]:
     """Retarget a batch of clips in one ``vmap``: each is padded to the longest with a mask.
 
     Args:
         skeleton: the clips' skeleton, or one per clip (each with the map's joint names).
         motions: the clips.
-        robot, mapping, options: as :func:`retarget`.
+        robot, mapping, options, fixed_base: as :func:`retarget`.
 
     Returns:
         One :class:`RetargetResult` per clip, cut to its own length.
@@ -115,7 +116,7 @@ def retarget_clips(
     problems = []
     for i, (s, m) in enumerate(zip(skeletons, motions)):
         try:
-            problems.append(prepare_retarget(s, m, robot, mapping, length=length))
+            problems.append(prepare_retarget(s, m, robot, mapping, length=length, fixed_base=fixed_base))
         except JaxanimError as exc:
             raise JaxanimError(f"motions[{i}]: {exc}") from None
     batch = jax.vmap(solve_retarget, in_axes=(None, 0, None))(robot, stack_problems(problems), options)
