@@ -239,3 +239,23 @@ CMU_TO_CMU = {
         {"source": "RightHand", "target": "rwrist", "position_weight": 0.5, "orientation_weight": 0.1},
     ],
 }
+
+
+#: A two-legged robot of 4 hinges (MJCF) whose retargeting solves compile in seconds, and its map from the
+#: shipped walk (tests/test_robots_retarget.py, tests/test_retarget_dataset.py).
+TINY = """<mujoco model="tiny"><worldbody><body name="pelvis" pos="0 0 0.5"><freejoint/>
+  <geom type="sphere" size="0.05"/>
+  <body name="lthigh" pos="0 0.1 0"><joint name="lhip" axis="0 1 0" range="-1.5 1.5"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.45" size="0.03"/>
+    <body name="lfoot" pos="0 0 -0.45"><joint name="lknee" axis="0 1 0" range="0 2"/>
+      <geom type="box" pos="0.03 0 -0.02" size="0.06 0.03 0.02"/></body></body>
+  <body name="rthigh" pos="0 -0.1 0"><joint name="rhip" axis="0 1 0" range="-1.5 1.5"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.45" size="0.03"/>
+    <body name="rfoot" pos="0 0 -0.45"><joint name="rknee" axis="0 1 0" range="0 2"/>
+      <geom type="box" pos="0.03 0 -0.02" size="0.06 0.03 0.02"/></body></body>
+</body></worldbody></mujoco>"""
+TINY_MAP = {"root": {"source": "Hips", "target": "pelvis"},
+            "pairs": [{"source": "LeftFoot", "target": "lfoot", "foot": True},
+                      {"source": "RightFoot", "target": "rfoot", "foot": True},
+                      {"source": "LeftUpLeg", "target": "lthigh", "orientation_weight": 0.0},
+                      {"source": "RightUpLeg", "target": "rthigh", "orientation_weight": 0.0}]}

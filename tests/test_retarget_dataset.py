@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
-import os
+import json
 import pathlib
 import re
 import time
@@ -117,7 +117,7 @@ def test_a_folder_writes_every_good_clip_names_the_broken_one_and_resumes(first_
     assert _manifest(out / "manifest.csv")["walk_a.bvh"] == rows["walk_a.bvh"]
 
 
-def test_formats_from_the_dataset_command(dataset, tmp_path, capsys):
+def test_formats_from_the_dataset_command(dataset, tmp_path, capsys, monkeypatch):
     """The same folder into the trainers' formats (the solve's program is the previous test's)."""
     from jaxanim.app import main
 
@@ -128,9 +128,11 @@ def test_formats_from_the_dataset_command(dataset, tmp_path, capsys):
     with np.load(out / "walk_a.npz") as bm:
         assert bm["fps"].tolist() == [60.0] and bm["joint_pos"].shape[0] == 47  # 24 frames at 30 fps, resampled
     assert (out / "walk_b.npz").exists()
+    monkeypatch.chdir(tmp_path)  # a relative --out
     code = main(["--no-compile-cache", "retarget", str(dataset / "walk_a.bvh"), str(dataset / "walk_c.bvh"),
-                 "--out", str(tmp_path / "csv"), "--batch", "2", "--format", "csv", "--map", "auto"])
+                 "--out", "csv", "--batch", "2", "--format", "csv", "--map", "auto"])
     assert code == 0
+    assert _manifest(tmp_path / "csv" / "manifest.csv")["walk_a.bvh"]["output"] == "walk_a.csv"
     rows = np.loadtxt(tmp_path / "csv" / "walk_a.csv", delimiter=",")
     assert rows.shape[0] == 24 and np.allclose(np.linalg.norm(rows[:, 3:7], axis=1), 1.0)
     capsys.readouterr()
@@ -140,23 +142,30 @@ def test_formats_from_the_dataset_command(dataset, tmp_path, capsys):
     assert "--out" in capsys.readouterr().err
 
 
-def test_two_processes_share_the_clips_and_merge_the_manifest(dataset, first_run, tmp_path):
+def test_two_processes_share_the_clips_and_merge_the_manifest(dataset, tmp_path):
     """``--coordinator/--num-processes/--process-id``: two processes on localhost (the pattern of
-    tests/test_distributed.py), a clip each; process 0 merges the parts; the clips equal the one-process run's.
-    The least work per process (the shipped map, csv): two processes each compile their own solve."""
+    tests/test_distributed.py), a clip each; process 0 merges the parts; the clips equal a one-process run's.
+    The least work per process: each compiles its own programs, so the robot is the 4-hinge one of the test
+    helpers and the output csv."""
     import shutil
     import sys
 
     from benchmarks.scaling import check_processes, free_port, run_processes, subprocess_env
+    from jaxanim.app import main
+
+    from .helpers import TINY, TINY_MAP
 
     folder = tmp_path / "two"
     (folder / "sub").mkdir(parents=True)
     for name in ("walk_a.bvh", "sub/walk_a.bvh"):
         shutil.copy(dataset / "walk_a.bvh", folder / name)
+    (tmp_path / "tiny.xml").write_text(TINY)
+    (tmp_path / "tiny.json").write_text(json.dumps(TINY_MAP))
+    common = ["retarget", str(folder), "--robot", str(tmp_path / "tiny.xml"), "--map", str(tmp_path / "tiny.json"),
+              "--batch", "1", "--format", "csv"]
     out, port = tmp_path / "out2", free_port()
-    argvs = [[sys.executable, "-m", "jaxanim", "--no-compile-cache", "retarget", str(folder), "--out", str(out),
-              "--batch", "1", "--format", "csv", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
-              "--process-id", str(i)] for i in range(2)]
+    argvs = [[sys.executable, "-m", "jaxanim", "--no-compile-cache", *common, "--out", str(out), "--coordinator",
+              f"127.0.0.1:{port}", "--num-processes", "2", "--process-id", str(i)] for i in range(2)]
     results = run_processes(argvs, env=subprocess_env(), timeout_s=240.0)
     check_processes(results, "jaxanim retarget on two processes")
     assert "process 1 of 2: 1 clips, 0 failed" in results[1].stdout
@@ -164,9 +173,8 @@ def test_two_processes_share_the_clips_and_merge_the_manifest(dataset, first_run
     assert sorted(rows) == ["sub/walk_a.bvh", "walk_a.bvh"] and all(r["status"] == "successful" for r in rows.values())
     assert not list(out.glob("manifest.part-*"))
     assert (out / "manifest.png").exists()
-    with np.load(first_run[1] / "walk_a.npz") as one:  # the same clip in one process (its auto map is the shipped)
-        qpos = one["qpos"]
+    one = tmp_path / "out1"  # the same clips in one process
+    assert main(["--no-compile-cache", "--quiet", *common, "--out", str(one)]) == 0
     for name in ("walk_a.csv", "sub/walk_a.csv"):
-        rows = np.loadtxt(out / name, delimiter=",")
-        mine = np.concatenate([rows[:, :3], rows[:, [6, 3, 4, 5]], rows[:, 7:]], axis=1)  # xyzw -> wxyz
-        np.testing.assert_allclose(mine, qpos, atol=1e-9)
+        np.testing.assert_allclose(np.loadtxt(out / name, delimiter=","), np.loadtxt(one / name, delimiter=","),
+                                   atol=1e-9)

@@ -15,7 +15,7 @@ import solvers
 from jaxanim import retargeting, robots
 
 from .conftest import shared_data_dir
-from .helpers import CMU_TO_CMU, CMU_TO_G1
+from .helpers import CMU_TO_CMU, CMU_TO_G1, TINY, TINY_MAP
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -299,30 +299,12 @@ def test_cmu_clip_onto_the_cmu_humanoid():
         assert np.median(tilts) < np.radians(5)
 
 
-TINY = """<mujoco model="tiny"><worldbody><body name="pelvis" pos="0 0 0.5"><freejoint/>
-  <geom type="sphere" size="0.05"/>
-  <body name="lthigh" pos="0 0.1 0"><joint name="lhip" axis="0 1 0" range="-1.5 1.5"/>
-    <geom type="capsule" fromto="0 0 0 0 0 -0.45" size="0.03"/>
-    <body name="lfoot" pos="0 0 -0.45"><joint name="lknee" axis="0 1 0" range="0 2"/>
-      <geom type="box" pos="0.03 0 -0.02" size="0.06 0.03 0.02"/></body></body>
-  <body name="rthigh" pos="0 -0.1 0"><joint name="rhip" axis="0 1 0" range="-1.5 1.5"/>
-    <geom type="capsule" fromto="0 0 0 0 0 -0.45" size="0.03"/>
-    <body name="rfoot" pos="0 0 -0.45"><joint name="rknee" axis="0 1 0" range="0 2"/>
-      <geom type="box" pos="0.03 0 -0.02" size="0.06 0.03 0.02"/></body></body>
-</body></worldbody></mujoco>"""
-
-
 @pytest.fixture(scope="module")
 def tiny():
     """A two-legged robot of 4 hinges: its solves compile in seconds (3 iterations)."""
     skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
     robot = robots.robot_from_mujoco(mujoco.MjModel.from_xml_string(TINY))
-    mapping = {"root": {"source": "Hips", "target": "pelvis"},
-               "pairs": [{"source": "LeftFoot", "target": "lfoot", "foot": True},
-                         {"source": "RightFoot", "target": "rfoot", "foot": True},
-                         {"source": "LeftUpLeg", "target": "lthigh", "orientation_weight": 0.0},
-                         {"source": "RightUpLeg", "target": "rthigh", "orientation_weight": 0.0}]}
-    return skel, motion, robot, mapping, retargeting.RetargetOptions(iterations=3)
+    return skel, motion, robot, TINY_MAP, retargeting.RetargetOptions(iterations=3)
 
 
 def test_gradient_of_the_solve_against_finite_differences(tiny):

@@ -175,6 +175,7 @@ def run_dataset(args: argparse.Namespace, ui: _UI, sources: list[str]) -> int:
         raise JaxanimError("--render: draws one clip; render a dataset's outputs one by one with `jaxanim render`")
     if args.batch < 1:
         raise JaxanimError(f"--batch {args.batch}: expected at least 1")
+    out = out.resolve()  # the outputs' paths in the manifest are relative to it
     clips = find_clips(sources, out, suffix)
     if not clips:
         raise JaxanimError(f"sources {' '.join(sources)}: no {' or '.join(CLIP_SUFFIXES)} clips found")
