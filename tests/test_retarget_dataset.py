@@ -144,15 +144,14 @@ def test_formats_from_the_dataset_command(dataset, tmp_path, capsys, monkeypatch
 
 def test_two_processes_share_the_clips_and_merge_the_manifest(dataset, tmp_path):
     """``--coordinator/--num-processes/--process-id``: two processes on localhost (the pattern of
-    tests/test_distributed.py), a clip each; process 0 merges the parts; the clips equal a one-process run's.
-    The least work per process: each compiles its own programs, so the robot is the 4-hinge one of the test
-    helpers and the output csv."""
+    tests/test_distributed.py), a copy of one clip each; process 0 merges the parts; the two copies come out
+    equal. The least work per process (each compiles its own programs, about 20 s of one core): the 4-hinge
+    robot of the test helpers, the csv format, no one-process run to compare with (a clip's solve never spans
+    the processes; the dataset's one-process runs are the tests above)."""
     import shutil
     import sys
 
     from benchmarks.scaling import check_processes, free_port, run_processes, subprocess_env
-    from jaxanim.app import main
-
     from .helpers import TINY, TINY_MAP
 
     folder = tmp_path / "two"
@@ -173,8 +172,7 @@ def test_two_processes_share_the_clips_and_merge_the_manifest(dataset, tmp_path)
     assert sorted(rows) == ["sub/walk_a.bvh", "walk_a.bvh"] and all(r["status"] == "successful" for r in rows.values())
     assert not list(out.glob("manifest.part-*"))
     assert (out / "manifest.png").exists()
-    one = tmp_path / "out1"  # the same clips in one process
-    assert main(["--no-compile-cache", "--quiet", *common, "--out", str(one)]) == 0
-    for name in ("walk_a.csv", "sub/walk_a.csv"):
-        np.testing.assert_allclose(np.loadtxt(out / name, delimiter=","), np.loadtxt(one / name, delimiter=","),
-                                   atol=1e-9)
+    # the same clip, solved by each process on its own: the same numbers (no computation spans the processes)
+    a, b = (np.loadtxt(out / name, delimiter=",") for name in ("walk_a.csv", "sub/walk_a.csv"))
+    assert a.shape == (24, 7 + 4) and np.all(np.isfinite(a))
+    np.testing.assert_array_equal(a, b)
