@@ -115,6 +115,7 @@ def test_a_folder_writes_every_good_clip_names_the_broken_one_and_resumes(first_
     assert (out / "walk_a.npz").stat().st_mtime_ns == stamp
     assert "3 retargeted or up to date (3 skipped)" in capsys.readouterr().out
     assert _manifest(out / "manifest.csv")["walk_a.bvh"] == rows["walk_a.bvh"]
+    assert '"robot_sha256": "' in rows["walk_a.bvh"]["options"]  # an edited robot file redoes the clips
 
 
 def test_formats_from_the_dataset_command(dataset, tmp_path, capsys, monkeypatch):

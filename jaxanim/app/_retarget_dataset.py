@@ -16,7 +16,8 @@ The run:
   (:data:`MANIFEST_COLUMNS`); it is rewritten after every batch, so an interrupted run keeps what it
   finished;
 * **resuming**: a clip is skipped when its output exists and its row records the same ``sha256`` of
-  the source, ``robot``, ``map`` and ``options``; ``--overwrite`` redoes it;
+  the source, ``robot``, ``map`` and ``options`` (which hold the robot and map files' hashes too, so an
+  edited file redoes its clips); ``--overwrite`` redoes it;
 * **failures** (an unreadable file, NaN, a solve that did not converge) are rows with ``status`` and
   ``error``; the others go on, and the exit status is 1 if any clip failed;
 * **processes**: under ``jax.distributed`` (``--distributed``, or ``--coordinator``,
@@ -187,9 +188,12 @@ def run_dataset(args: argparse.Namespace, ui: _UI, sources: list[str]) -> int:
         robot = robots.load_robot(robot_path, dtype=dtype)
     mapping = None if map_arg == "auto" else retargeting.load_mapping(map_arg)
     options = retargeting.RetargetOptions(iterations=args.iterations)
+    # what else decides an output: the options, and the robot and map files' contents (edited in place, they redo)
     option_key = json.dumps({"format": fmt, "fps": args.fps, "csv_header": bool(args.csv_header), "dtype": dtype,
                              "iterations": args.iterations, "fixed_base": bool(args.fixed_base),
-                             "body_model": args.body_model}, sort_keys=True)
+                             "body_model": args.body_model, "robot_sha256": sha256(pathlib.Path(robot_path)),
+                             "map_sha256": None if map_arg == "auto" else sha256(pathlib.Path(map_arg))},
+                            sort_keys=True)
     manifest = out / "manifest.csv"
     previous = read_manifest(manifest)
     for part in sorted(out.glob(_PART_GLOB)):  # an interrupted distributed run's rows
