@@ -95,7 +95,8 @@ def _screenshot(url: str, path, user_data_dir, budget_ms: int):
     cmd = [shutil.which("chromium"), *_CHROMIUM_FLAGS, f"--user-data-dir={user_data_dir}",
            f"--window-size={_WINDOW[0]},{_WINDOW[1]}", f"--virtual-time-budget={budget_ms}",
            f"--screenshot={path}", url]
-    subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=90, check=True)
+    # 180 s: it takes about 8 s alone, and once timed out at 90 s while the suite's other worker was busy
+    subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=180, check=True)
     with Image.open(path) as im:
         return np.asarray(im.convert("RGB"), dtype=np.int64)
 
