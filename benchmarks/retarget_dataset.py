@@ -28,6 +28,7 @@ import tempfile
 import time
 
 import numpy as np
+from jaxanim.app._retarget_dataset import _header_frames
 
 from .report import Row, Table, Target, sel
 from .timing import Timing
@@ -228,7 +229,7 @@ def dataset_table(config, robot_path: pathlib.Path, sizes: DatasetSizes) -> Tabl
 
         add(_MINK, mink_run, peer=True)
         first = paths[0]
-        n_first = _frames_of(first)
+        n_first = _header_frames(first)
 
         def one_jax():
             seconds = _command([*common, str(first), "--out", str(tmp / "one.npz")], cache)
@@ -243,9 +244,3 @@ def dataset_table(config, robot_path: pathlib.Path, sizes: DatasetSizes) -> Tabl
         add(_JAX_ONE, one_jax)
         add(_MINK_ONE, one_mink, peer=True)
     return table
-
-
-def _frames_of(path: pathlib.Path) -> int:
-    from jaxanim.app._retarget_dataset import _header_frames
-
-    return _header_frames(path)

@@ -147,8 +147,8 @@ def _cell(v) -> str:
 class _Batcher:
     """The prepared clips waiting for a solve, by bucket; solves a batch once it is full."""
 
-    def __init__(self, robot, options, batch: int, solve):
-        self.robot, self.options, self.batch, self.solve = robot, options, batch, solve
+    def __init__(self, batch: int, solve):
+        self.batch, self.solve = batch, solve
         self.waiting: dict[tuple, list] = {}
 
     def add(self, key, item):
@@ -251,16 +251,16 @@ def run_dataset(args: argparse.Namespace, ui: _UI, sources: list[str]) -> int:
             record(g["clip"], row)
         write_manifest(own, {**previous, **rows} if own == manifest else rows)
 
-    batcher = _Batcher(robot, options, args.batch, solve)
+    batcher = _Batcher(args.batch, solve)
     quiet, skipped = _Collect(), 0
-    # bucket by bucket (the frame counts from the files' headers), so that batches fill in turn
-    order = sorted(clips, key=lambda c: (bucket_length(_header_frames(c.path)), c.name))
+    # bucket by bucket (the frame counts from the files' headers, read once), so that batches fill in turn
+    buckets = {c.name: bucket_length(_header_frames(c.path)) for c in clips}
     bucket = None
     with bar:
-        for clip in order:
-            if bucket_length(_header_frames(clip.path)) != bucket:
+        for clip in sorted(clips, key=lambda c: (buckets[c.name], c.name)):
+            if buckets[clip.name] != bucket:
                 batcher.flush()
-                bucket = bucket_length(_header_frames(clip.path))
+                bucket = buckets[clip.name]
             t0 = time.perf_counter()
             try:
                 digest = sha256(clip.path)
