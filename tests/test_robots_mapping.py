@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -108,6 +110,28 @@ def test_calibration_frame_takes_the_clips_pose(setup):
     np.testing.assert_allclose(np.asarray(same.offset), np.asarray(rest.offset), atol=1e-6)
     other = retargeting.calibrate(m, skel, g1, motion=walk)
     assert np.max(np.abs(np.asarray(other.offset) - np.asarray(rest.offset))) > 1e-2
+
+
+def test_the_calibration_ik_runs_once_for_the_same_robot_and_goals(setup, monkeypatch):
+    """A dataset's clips of one skeleton calibrate alike: the IK's pose is kept by its inputs (the robot's
+    numbers included), so the second calibration solves nothing and gives the same numbers, and a robot whose
+    zero pose differs solves again."""
+    from jaxanim.retargeting import _mapping
+
+    skel, g1, _ = setup
+    m = retargeting.load_mapping(WALK_TO_G1)
+    monkeypatch.setattr(_mapping, "_COMMON_POSES", type(_mapping._COMMON_POSES)())
+    solves = []
+    solve = _mapping._solve_common_pose
+    monkeypatch.setattr(_mapping, "_solve_common_pose", lambda *a: solves.append(1) or solve(*a))
+    first = retargeting.calibrate(m, skel, g1)
+    again = retargeting.calibrate(m, skel, g1)
+    assert len(solves) == 1
+    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    bent = jnp.asarray(g1.qpos0).at[-1].add(0.3)  # the last wrist joint: another robot to the IK
+    retargeting.calibrate(m, skel, eqx.tree_at(lambda r: r.qpos0, g1, bent))
+    assert len(solves) == 2
 
 
 def test_given_offsets_and_scale_are_kept_and_the_file_form_parses(setup, tmp_path):

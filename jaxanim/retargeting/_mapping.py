@@ -35,7 +35,9 @@ degrees).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import hashlib
 import json
 import os
 import warnings
@@ -405,12 +407,43 @@ def _standing_feet(robot: Robot, bodies, rows) -> tuple[tuple[tuple[int, ...], .
     return tuple(points), np.stack(flat) if flat else np.zeros((0, 3, 3)), np.asarray(heights)
 
 
+#: The calibration IK's results by their inputs (:func:`_pose_key`), the most recent first: a dataset's clips of
+#: one skeleton calibrate the same way, and each IK traced its program again (a quarter of a second per clip).
+_COMMON_POSES: collections.OrderedDict[str, np.ndarray] = collections.OrderedDict()
+_COMMON_POSES_KEPT = 32
+
+
+def _pose_key(robot: Robot, names, goals, root_body: int) -> str:
+    """A digest of everything the calibration IK depends on: the robot's structure and numbers, the targets."""
+    h = hashlib.sha256()
+    leaves, treedef = jax.tree_util.tree_flatten(robot)
+    h.update(repr((str(treedef), tuple(names), int(root_body))).encode())
+    for x in leaves:
+        a = np.asarray(x)
+        h.update(repr((a.dtype.str, a.shape)).encode() + np.ascontiguousarray(a).tobytes())
+    h.update(np.ascontiguousarray(np.asarray(goals, np.float64)).tobytes())
+    return h.hexdigest()
+
+
 def _common_pose(robot: Robot, names, goals, root_body: int) -> np.ndarray:
     """``[nq]`` the robot brought by IK, on positions, to ``goals`` (its targets ``names``), its root kept
     at the zero pose and its joints pulled towards ``qpos0`` (the redundant ones, such as a wrist's
-    twist, stay there); the zero pose itself when there is no goal."""
+    twist, stay there); the zero pose itself when there is no goal. The same inputs give the same
+    result again without an IK (:data:`_COMMON_POSES`)."""
     if not names:
         return np.asarray(robot.qpos0, np.float64)
+    key = _pose_key(robot, names, goals, root_body)
+    if key in _COMMON_POSES:
+        _COMMON_POSES.move_to_end(key)
+        return _COMMON_POSES[key].copy()
+    q = _solve_common_pose(robot, names, goals, root_body)
+    _COMMON_POSES[key] = q.copy()
+    while len(_COMMON_POSES) > _COMMON_POSES_KEPT:
+        _COMMON_POSES.popitem(last=False)
+    return q
+
+
+def _solve_common_pose(robot: Robot, names, goals, root_body: int) -> np.ndarray:
     free = free_joint_of(robot, root_body)
     dtype = robot.qpos0.dtype
     weights, frozen = np.ones(robot.nv), ()

@@ -22,7 +22,7 @@ from .. import rotations as rot
 from .._errors import JaxanimError
 from .._linalg import einsum
 from .._types import Array, Bool, Float
-from ..kinematics._contacts import true_runs, detect_foot_contacts
+from ..kinematics._contacts import contacts_from_positions, resolve_feet, true_runs
 from ..kinematics._fk import forward_kinematics as skeleton_fk
 from ..skeleton._skeleton import Motion, Skeleton
 from ..robots._kinematics import target_rows
@@ -242,17 +242,30 @@ def prepare_retarget(
     length = T if length is None else int(length)
     if length < T:
         raise JaxanimError(f"length: {length} is shorter than the clip ({T} frames)")
+    pad = length - T
+
+    def padded(x, fill=None):
+        x = np.asarray(x)
+        if not pad:
+            return x
+        tail = np.repeat(x[-1:], pad, axis=0) if fill is None else np.full((pad,) + x.shape[1:], fill, x.dtype)
+        return np.concatenate([x, tail])
+
     axes = np.asarray(calib.axes, np.float64)
     src = [skeleton.names.index(n) for n in full.sources]
-    fk = _clip_fk(skeleton, motion.rotations, motion.translations)
-    P = np.asarray(fk.positions, np.float64)[:, src] @ axes.T  # [T, K, 3] in the robot's axes
-    R = axes @ np.asarray(fk.rotations, np.float64)[:, src]  # [T, K, 3, 3]
+    # the per-frame programs run on the padded length, so that a batch's clips of any length share them
+    fk = _clip_fk(skeleton, padded(motion.rotations), padded(motion.translations))
+    P = np.asarray(fk.positions, np.float64)[:T, src] @ axes.T  # [T, K, 3] in the robot's axes
+    R = axes @ np.asarray(fk.rotations, np.float64)[:T, src]  # [T, K, 3, 3]
     R_target = R @ _rot_matrices(offsets)
     feet_k = [k for k in range(K) if full.feet[k]]
     foot_names = tuple(full.sources[k] for k in feet_k)
     up = 1 if mapping.source_up == "y" else 2
-    if contacts is None:
-        _, contacts = detect_foot_contacts(skeleton, motion, feet=foot_names, up=up)
+    if contacts is None:  # detect_foot_contacts's, from the positions above
+        motion.check_frame_time("motion")
+        _, idx = resolve_feet(skeleton, foot_names, up)
+        contacts = contacts_from_positions(skeleton, idx, np.asarray(fk.positions)[:T, idx], float(motion.frame_time),
+                                           up, None, None, None)
     contacts = np.asarray(contacts)
     if contacts.shape != (T, len(feet_k)):
         raise JaxanimError(f"contacts: expected shape (frames, feet) = ({T}, {len(feet_k)}), got {contacts.shape}")
@@ -274,23 +287,14 @@ def prepare_retarget(
             anchor_R[a:b, f] = _rot_z(np.arctan2(np.sin(heading).mean(), np.cos(heading).mean())) @ R0
         stance = contacts[:, f]
         stance_height[f] = np.median(P[stance, k, 2]) if stance.any() else P[:, k, 2].min()
-    pad = length - T
-
-    def padded(x, fill=None):
-        x = np.asarray(x)
-        if not pad:
-            return x
-        tail = np.repeat(x[-1:], pad, axis=0) if fill is None else np.full((pad,) + x.shape[1:], fill, x.dtype)
-        return np.concatenate([x, tail])
-
     return RetargetProblem(
         names=full.targets, bodies=bodies, rows=rows, feet=tuple(feet_k), foot_points=tuple(foot_points),
         oriented=tuple(k for k in range(K) if full.feet[k] or float(full.orientation_weight[k]) != 0.0),
-        positions=jnp.asarray(padded(P), dtype), orientations=jnp.asarray(padded(_quat(R_target)), dtype),
+        positions=jnp.asarray(padded(P), dtype), orientations=jnp.asarray(_quat(padded(R_target)), dtype),
         position_weight=jnp.asarray(full.position_weight, dtype),
         orientation_weight=jnp.asarray(full.orientation_weight, dtype),
         scale=jnp.asarray(calib.scale, dtype), contacts=jnp.asarray(padded(contacts, False)),
-        anchors=jnp.asarray(padded(anchors), dtype), anchor_orientations=jnp.asarray(padded(_quat(anchor_R)), dtype),
+        anchors=jnp.asarray(padded(anchors), dtype), anchor_orientations=jnp.asarray(_quat(padded(anchor_R)), dtype),
         stance_height=jnp.asarray(stance_height, dtype), foot_height=jnp.asarray(foot_height, dtype),
         mask=jnp.asarray(np.arange(length) < T), frame_time=jnp.asarray(float(motion.frame_time), dtype),
         axes=jnp.asarray(axes, dtype), ground=jnp.asarray(ground, dtype), floating=floating, added_points=added,
