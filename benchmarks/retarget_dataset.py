@@ -22,6 +22,7 @@ import dataclasses
 import multiprocessing
 import os
 import pathlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -82,15 +83,27 @@ def write_dataset(folder: pathlib.Path, sizes: DatasetSizes, cmu_path: pathlib.P
     return total
 
 
-def _command(args: list[str], cache: pathlib.Path) -> float:
-    """Wall seconds of ``python -m jaxanim ARGS`` with its compilation cache in ``cache``."""
+_COMPILED = re.compile(r"Finished (XLA compilation of|jaxpr to MLIR module conversion) (.+) in ([0-9.]+) sec")
+
+
+def _command(args: list[str], cache: pathlib.Path, compiles: dict | None = None) -> float:
+    """Wall seconds of ``python -m jaxanim ARGS`` with its compilation cache in ``cache``; with ``compiles``, JAX
+    logs its compilations (``JAX_LOG_COMPILES``) and ``compiles`` gets the seconds of each top-level program's
+    lowering (``"MLIR"``) and XLA compilation (``"XLA"``) by program name, as ``(seconds, count)``."""
     env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(cache))
+    if compiles is not None:
+        env["JAX_LOG_COMPILES"] = "1"
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "jaxanim", "--quiet", *args], env=env, capture_output=True,
                           text=True)
     seconds = time.perf_counter() - t0
     if done.returncode not in (0, 1):
         raise RuntimeError(f"jaxanim {' '.join(args)}: exit status {done.returncode}: {done.stderr[-2000:]}")
+    if compiles is not None:
+        for kind, name, sec in _COMPILED.findall(done.stderr):
+            by_name = compiles.setdefault("XLA" if kind.startswith("XLA") else "MLIR", {})
+            total, count = by_name.get(name, (0.0, 0))
+            by_name[name] = (total + float(sec), count + 1)
     return seconds
 
 
@@ -212,9 +225,12 @@ def dataset_table(config, robot_path: pathlib.Path, sizes: DatasetSizes) -> Tabl
 
         runs: dict[str, tuple[float, float, int]] = {}  # impl: (wall s, the clips' own seconds summed, buckets)
 
+        compiles: dict[str, dict[str, float]] = {}
+
         def jax_run(impl, extra):
             out = tmp / "jaxanim"
-            seconds = _command([*common, str(tmp / "clips"), "--out", str(out), *extra], cache)
+            seconds = _command([*common, str(tmp / "clips"), "--out", str(out), *extra], cache,
+                               compiles if impl == _JAX_COLD else None)
             with open(out / "manifest.csv", newline="") as f:
                 rows = list(csv.DictReader(f))
             failed = sum(r["status"] != "successful" for r in rows)
@@ -253,18 +269,25 @@ def dataset_table(config, robot_path: pathlib.Path, sizes: DatasetSizes) -> Tabl
 
         add(_JAX_ONE, one_jax)
         add(_MINK_ONE, one_mink, peer=True)
-    table.notes.extend(_compile_notes(runs))
+    table.notes.extend(_compile_notes(runs, compiles))
     return table
 
 
-def _compile_notes(runs: dict[str, tuple[float, float, int]]) -> list[str]:
-    """Issue 59's compile target, from the cold and warm runs: what the empty cache added, per bucket."""
+def _compile_notes(runs: dict[str, tuple[float, float, int]], compiles: dict[str, dict[str, float]]) -> list[str]:
+    """Issue 59's compile target, from the cold and warm runs: what the empty cache added, per bucket, and the
+    cold run's compilations by program (JAX's log)."""
     if _JAX_COLD not in runs or _JAX_WARM not in runs:
         return []
     (cold, _, buckets), (warm, own, _) = runs[_JAX_COLD], runs[_JAX_WARM]
     per = (cold - warm) / max(buckets, 1)
+    xla, mlir = compiles.get("XLA", {}), compiles.get("MLIR", {})
+    top = sorted(xla.items(), key=lambda kv: -kv[1][0])[:5]
+    profile = (f" Profile (JAX's compile log of the cold run): XLA compiled {sum(c for _, c in xla.values())} "
+               f"programs in {sum(t for t, _ in xla.values()):.1f} s, lowered in "
+               f"{sum(t for t, _ in mlir.values()):.1f} s; the most: "
+               + ", ".join(f"`{name}` {sec:.1f} s ({n}×)" for name, (sec, n) in top) + ".") if xla else ""
     return [f"Target: cold compiling ≤ 10 s per bucket: the empty cache added {cold - warm:.1f} s over {buckets} "
-            f"buckets, {per:.1f} s each: {'met' if per <= 10.0 else 'missed'}.",
+            f"buckets, {per:.1f} s each: {'met' if per <= 10.0 else 'missed'}.{profile}",
             f"Where the warm run's time goes: {own:.1f} s in the clips' own work (summed per clip in the manifest: "
             "reading, preparing, writing, and each clip's share of its batch's solve, which includes tracing the "
             "bucket's programs and loading them from the cache, paid in every process), the other "
