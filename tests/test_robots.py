@@ -648,3 +648,41 @@ def test_robot_checks_its_geom_fields(tiny):
         dataclasses.replace(robot, geom_types=robot.geom_types[1:])
     with pytest.raises(JaxanimError, match=r"geom_bodies: geom 0 is on body 0, expected 1 <= body < 7 \(not the world\)"):
         dataclasses.replace(robot, geom_bodies=(0,) + robot.geom_bodies[1:])
+
+
+def test_host_body_frames_match_live_mujoco(tiny):
+    """The NumPy FK of many frames (for writing results) against MuJoCo on the tiny model's free, ball, slide and
+    multi-joint bodies, and its quaternions against MuJoCo's (``w >= 0``)."""
+    from jaxanim.robots._host import body_frames_host, matrix_to_quat_host
+
+    robot, m, qs = tiny
+    xpos, xmat = body_frames_host(robot, qs)
+    xquat = matrix_to_quat_host(xmat)
+    for n, q in enumerate(qs):
+        d = mujoco.MjData(m)
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        assert_close(f"xpos[{n}]", xpos[n], d.xpos, atol=_ATOL_F64)
+        assert_close(f"xmat[{n}]", xmat[n], d.xmat.reshape(-1, 3, 3), atol=_ATOL_F64)
+        mj_quat = d.xquat * np.where(d.xquat[:, :1] < 0, -1.0, 1.0)
+        assert_close(f"xquat[{n}]", xquat[n], mj_quat, atol=_ATOL_F64)
+
+
+@pytest.mark.parametrize("key", sorted(MJCF))
+def test_host_body_frames_match_mujoco_on_the_shared_robots(key):
+    from jaxanim.robots._host import body_frames_host
+
+    path = shared_data_dir() / "robots" / MJCF[key]
+    robot = robots.load_robot(path)
+    m = mujoco.MjModel.from_xml_path(str(path))
+    rng = np.random.default_rng(3)
+    qs = np.tile(m.qpos0, (4, 1))
+    qs[:, 7:] += rng.uniform(-1, 1, (4, m.nq - 7))
+    qs[:, :7] = np.c_[rng.uniform(-1, 1, (4, 3)), rng.normal(size=(4, 4))]
+    xpos, xmat = body_frames_host(robot, qs)
+    d = mujoco.MjData(m)
+    for n, q in enumerate(qs):
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        assert_close(f"xpos[{n}]", xpos[n], d.xpos, atol=_ATOL_F64)
+        assert_close(f"xmat[{n}]", xmat[n], d.xmat.reshape(-1, 3, 3), atol=_ATOL_F64)

@@ -33,7 +33,6 @@ or MP4, and :func:`._view.build_viewer` into the browser.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import os
 import pathlib
@@ -455,21 +454,20 @@ def retarget_scene(clip: RetargetClip, shift: float | None = None) -> RetargetSc
 # ------------------------------------------------------------------------------------------------
 
 
-@functools.cache
-def _result_fk():
-    """One compiled program (op by op, the FK of every frame compiled each of its operations: 4.8 s against
-    0.9 s): the robot's FK of every frame, and the source's joints in the robot's frame."""
-    import jax  # noqa: PLC0415 (the reader above needs no JAX)
+def _result_fk(robot, qpos, skeleton, motion, problem):
+    """The robot's body frames at every frame (NumPy, :func:`~jaxanim.robots._host.body_frames_host`: a compiled
+    program per clip length cost seconds of compiling) and the source's joints in the robot's frame (the
+    program that prepared the problem, on the same frames)."""
+    from ..retargeting._problem import clip_fk  # noqa: PLC0415 (the reader above needs no JAX)
+    from ..robots._host import body_frames_host  # noqa: PLC0415
 
-    from .. import robots  # noqa: PLC0415
-    from ..kinematics import forward_kinematics  # noqa: PLC0415
-
-    def fk(robot, qpos, skeleton, motion, problem):
-        body = jax.vmap(lambda q: robots.forward_kinematics(robot, q))(qpos)
-        src = jax.vmap(lambda r, t: forward_kinematics(skeleton, r, t).positions)(motion.rotations, motion.translations)
-        return body, problem.in_robot_frame(src)
-
-    return jax.jit(fk)
+    xpos, xmat = body_frames_host(robot, qpos)
+    src = np.asarray(clip_fk(skeleton, motion.rotations, motion.translations).positions, np.float64)
+    p = src @ np.asarray(problem.axes, np.float64).T  # problem.in_robot_frame, on the host
+    p[..., 2] -= float(problem.ground)
+    p = float(problem.scale) * p
+    p[..., 2] += float(problem.lift)
+    return xpos, xmat, p
 
 
 def retarget_arrays(skeleton, motion, robot, problem, result, *, robot_path="", source="",
@@ -488,13 +486,14 @@ def retarget_arrays(skeleton, motion, robot, problem, result, *, robot_path="", 
         ``{key: numpy array}``, for ``np.savez``: FK of every frame (``body_positions``, ``body_xmat``), the
         source in the robot's frame, the robot's geometry, the diagnostics and the status.
     """
-    fk, src = _result_fk()(robot, result.qpos, skeleton, motion, problem)
+    qpos = np.asarray(result.qpos)
+    xpos, xmat, src = (x.astype(qpos.dtype) for x in _result_fk(robot, qpos, skeleton, motion, problem))
     d = result.diagnostics
     success = bool(result.success)
     return {
         "qpos": np.asarray(result.qpos), "fps": np.asarray(float(result.fps)), "joint_names": np.asarray(robot.jnt_names),
         "body_names": np.asarray(robot.body_names), "body_parents": np.asarray(robot.body_parents),
-        "body_positions": np.asarray(fk.xpos), "body_xmat": np.asarray(fk.xmat),
+        "body_positions": xpos, "body_xmat": xmat,
         "source_positions": np.asarray(src), "source_names": np.asarray(skeleton.names),
         "source_parents": np.asarray(skeleton.parents), "feet": np.asarray([problem.names[k] for k in problem.feet]),
         "targets": np.asarray(problem.names),

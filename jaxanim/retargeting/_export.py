@@ -36,8 +36,8 @@ whole_body_tracking at ``cd65172032893724b445448818c34165846d847d`` (``scripts/c
 Every array is written as float64. The peers' own writers produce float32 arrays (from torch) for
 ``joint_*``, ``body_*`` and GMR's ``local_body_pos``, but their readers convert what they load
 (``torch.tensor(..., dtype=torch.float32)``; GMR's loader takes the arrays as they are), so none needs
-float32. The values are computed in JAX's precision: float64 with ``jax_enable_x64``, as the command
-line sets it.
+float32. The bodies' frames are computed on the host in float64 (:mod:`jaxanim.robots._host`), the
+velocities in JAX's precision: float64 with ``jax_enable_x64``, as the command line sets it.
 
 Finite differences, one scheme everywhere: with ``dt = 1 / fps``, frame ``t`` of ``T`` has
 ``v[t] = (x[t+1] ⊖ x[t-1]) / (2 dt)`` for ``0 < t < T-1``, the one-sided ``(x[1] ⊖ x[0]) / dt`` and
@@ -52,14 +52,13 @@ from __future__ import annotations
 import os
 import pickle
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._errors import JaxanimError, check_float, check_shape
 from .._types import Array, Float
-from ..robots._kinematics import forward_kinematics
+from ..robots._host import body_frames_host, matrix_to_quat_host
 from ..robots._robot import Robot
 from ..robots._tangent import TangentLayout, tangent_difference
 from ..rotations._numpy import quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
@@ -74,13 +73,6 @@ _XYZW = [4, 5, 6, 3]  # a free joint's qpos slots of its quaternion's x, y, z, w
 
 #: ``qb ⊖ qa`` as one program per layout and shape
 _tangent_difference = jax.jit(tangent_difference, static_argnums=0)
-
-
-@eqx.filter_jit
-def _body_frames(robot: Robot, qpos):
-    """World positions ``[T, bodies, 3]`` and wxyz quaternions ``[T, bodies, 4]`` of every body."""
-    fk = jax.vmap(lambda q: forward_kinematics(robot, q))(qpos)
-    return fk.xpos, fk.xquat
 
 
 def format_suffix(format: str) -> str:
@@ -142,7 +134,7 @@ def _difference_pairs(T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return a, b, np.where(b > a, 1.0 / np.maximum(b - a, 1), 0.0)
 
 
-#: Frames are padded to a multiple of this for the compiled kinematics (a dataset of clips of many lengths
+#: Frames are padded to a multiple of this for the compiled differences (a dataset of clips of many lengths
 #: compiles a program per multiple, not per length).
 _PAD = 64
 
@@ -269,8 +261,10 @@ def _write_atomic(path, write) -> None:
 
 
 def _body_arrays(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    xpos, xquat = _body_frames(robot, jnp.asarray(_padded(q)))
-    return np.asarray(xpos, np.float64)[: len(q)], np.asarray(xquat, np.float64)[: len(q)]
+    """World positions ``[T, bodies, 3]`` and wxyz quaternions ``[T, bodies, 4]`` (``w >= 0``) of every body, on
+    the host (a compiled program per clip length cost seconds of compiling)."""
+    xpos, xmat = body_frames_host(robot, q)
+    return xpos, matrix_to_quat_host(xmat)
 
 
 def _beyondmimic(robot: Robot, lay: TangentLayout, q: np.ndarray, fps: float) -> dict:

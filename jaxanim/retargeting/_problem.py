@@ -254,7 +254,7 @@ def prepare_retarget(
     axes = np.asarray(calib.axes, np.float64)
     src = [skeleton.names.index(n) for n in full.sources]
     # the per-frame programs run on the padded length, so that a batch's clips of any length share them
-    fk = _clip_fk(skeleton, padded(motion.rotations), padded(motion.translations))
+    fk = clip_fk(skeleton, padded(motion.rotations), padded(motion.translations))
     P = np.asarray(fk.positions, np.float64)[:T, src] @ axes.T  # [T, K, 3] in the robot's axes
     R = axes @ np.asarray(fk.rotations, np.float64)[:T, src]  # [T, K, 3, 3]
     R_target = R @ _rot_matrices(offsets)
@@ -302,8 +302,9 @@ def prepare_retarget(
 
 
 @eqx.filter_jit
-def _clip_fk(skeleton: Skeleton, rotations, translations):
-    """Every frame's forward kinematics, one compiled program (op by op it took seconds per clip length)."""
+def clip_fk(skeleton: Skeleton, rotations, translations):
+    """Every frame's forward kinematics, one compiled program (op by op it took seconds per clip length); internal
+    interface: also used by the command line for the result's source positions, on the same frames."""
     return jax.vmap(lambda q, t: skeleton_fk(skeleton, q, t))(rotations, translations)
 
 

@@ -12,6 +12,7 @@ import dataclasses
 import functools
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -156,16 +157,29 @@ def channels_to_motion(
     """
     if not isinstance(skeleton, Skeleton):
         raise JaxanimError(f"skeleton: expected a Skeleton, got {type(skeleton).__name__}")
-    values = jnp.asarray(values)
+    values = values if isinstance(values, jax.core.Tracer) else np.asarray(values)
     check_float("values", values)
     check_shape("values", values, (None, skeleton.num_channels), what=f"(frames, channels) = (*, {skeleton.num_channels})")
     frame_time = jnp.asarray(frame_time)
     check_float("frame_time", frame_time)
     check_shape("frame_time", frame_time, (), what="() (a scalar)")
     dtype = jnp.result_type(values.dtype, skeleton.offsets.dtype, jnp.float32)
-    return _channels_to_motion(
-        skeleton.channels, skeleton.offsets, values.astype(dtype), frame_time.astype(dtype), bool(degrees)
-    )
+    if isinstance(values, jax.core.Tracer):  # under a transformation: one program of its shape
+        return _channels_to_motion(skeleton.channels, skeleton.offsets, values.astype(dtype),
+                                   frame_time.astype(dtype), bool(degrees))
+    # concrete values: padded and cut on the host to a multiple of _PAD_FRAMES, one program for many lengths
+    frames = values.shape[0]
+    host = np.asarray(values, dtype)
+    padded = np.concatenate([host, np.zeros((-frames % _PAD_FRAMES, host.shape[1]), dtype)])
+    m = _channels_to_motion(skeleton.channels, skeleton.offsets, jax.device_put(padded), frame_time.astype(dtype),
+                            bool(degrees))  # device_put: jnp.asarray compiles a program per shape (jax 0.10)
+    return Motion(jax.device_put(np.asarray(m.rotations)[:frames]), jax.device_put(np.asarray(m.translations)[:frames]),
+                  m.frame_time)
+
+
+#: :func:`channels_to_motion` converts frames in blocks of this many (each frame on its own, so the zero frames
+#: that fill the last block change nothing): a dataset's clips of many lengths compiled a program each.
+_PAD_FRAMES = 64
 
 
 # The jitted kernels take the channel layout (static), not the Skeleton, so that skeletons that
