@@ -653,11 +653,12 @@ def test_robot_checks_its_geom_fields(tiny):
 def test_host_body_frames_match_live_mujoco(tiny):
     """The NumPy FK of many frames (for writing results) against MuJoCo on the tiny model's free, ball, slide and
     multi-joint bodies, and its quaternions against MuJoCo's (``w >= 0``)."""
-    from jaxanim.robots._host import body_frames_host, matrix_to_quat_host
+    from jaxanim.robots._host import body_frames_host
+    from jaxanim.rotations._numpy import matrix_to_quat
 
     robot, m, qs = tiny
     xpos, xmat = body_frames_host(robot, qs)
-    xquat = matrix_to_quat_host(xmat)
+    xquat = matrix_to_quat(xmat)
     for n, q in enumerate(qs):
         d = mujoco.MjData(m)
         d.qpos[:] = q

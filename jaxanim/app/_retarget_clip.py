@@ -491,7 +491,7 @@ def retarget_arrays(skeleton, motion, robot, problem, result, *, robot_path="", 
     d = result.diagnostics
     success = bool(result.success)
     return {
-        "qpos": np.asarray(result.qpos), "fps": np.asarray(float(result.fps)), "joint_names": np.asarray(robot.jnt_names),
+        "qpos": qpos, "fps": np.asarray(float(result.fps)), "joint_names": np.asarray(robot.jnt_names),
         "body_names": np.asarray(robot.body_names), "body_parents": np.asarray(robot.body_parents),
         "body_positions": xpos, "body_xmat": xmat,
         "source_positions": np.asarray(src), "source_names": np.asarray(skeleton.names),

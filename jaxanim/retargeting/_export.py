@@ -58,10 +58,10 @@ import numpy as np
 
 from .._errors import JaxanimError, check_float, check_shape
 from .._types import Array, Float
-from ..robots._host import body_frames_host, matrix_to_quat_host
+from ..robots._host import body_frames_host
 from ..robots._robot import Robot
 from ..robots._tangent import TangentLayout, tangent_difference
-from ..rotations._numpy import quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
+from ..rotations._numpy import matrix_to_quat, quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
 
 __all__ = ["FORMATS", "format_suffix", "qvel_from_qpos", "resample_qpos", "write_motion"]
 
@@ -264,7 +264,7 @@ def _body_arrays(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World positions ``[T, bodies, 3]`` and wxyz quaternions ``[T, bodies, 4]`` (``w >= 0``) of every body, on
     the host (a compiled program per clip length cost seconds of compiling)."""
     xpos, xmat = body_frames_host(robot, q)
-    return xpos, matrix_to_quat_host(xmat)
+    return xpos, matrix_to_quat(xmat)
 
 
 def _beyondmimic(robot: Robot, lay: TangentLayout, q: np.ndarray, fps: float) -> dict:

@@ -11,16 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..rotations._numpy import quat_to_matrix
+from ..rotations._numpy import quat_exp, quat_to_matrix
 from ._robot import Robot
-
-
-def _axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """``[T, 3, 3]`` rotations by ``angle [T]`` about the unit ``axis [3]`` (Rodrigues)."""
-    x, y, z = axis
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
 
 
 def _unit(q: np.ndarray) -> np.ndarray:
@@ -63,27 +55,9 @@ def body_frames_host(robot: Robot, qpos) -> tuple[np.ndarray, np.ndarray]:
                 R_j, t_j = np.broadcast_to(np.eye(3), (T, 3, 3)), (q[:, a] - q0[a])[:, None] * jnt_axis[j]
             else:
                 R_j = (quat_to_matrix(_unit(q[:, a:a + 4])) if kind == "ball"
-                       else _axis_angle_matrix(jnt_axis[j], q[:, a] - q0[a]))
+                       else quat_to_matrix(quat_exp((q[:, a] - q0[a])[:, None] * jnt_axis[j])))
                 t_j = jnt_pos[j] - R_j @ jnt_pos[j]
             t = t + (R @ t_j[..., None])[..., 0]
             R = R @ R_j
         xpos[:, b], xmat[:, b] = t, R
     return xpos, xmat
-
-
-def matrix_to_quat_host(R: np.ndarray) -> np.ndarray:
-    """``[..., 4]`` wxyz unit quaternions of ``[..., 3, 3]`` rotation matrices, ``w >= 0`` (Shepperd's
-    method: the largest of the four squared components first)."""
-    m = np.asarray(R, np.float64)
-    tr = np.trace(m, axis1=-2, axis2=-1)
-    w = np.stack([1.0 + tr, 1.0 + 2.0 * m[..., 0, 0] - tr, 1.0 + 2.0 * m[..., 1, 1] - tr,
-                  1.0 + 2.0 * m[..., 2, 2] - tr], axis=-1)  # 4 x each squared component
-    k = np.argmax(w, axis=-1)
-    s = np.sqrt(np.maximum(np.take_along_axis(w, k[..., None], axis=-1)[..., 0], 1e-300))
-    a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
-    e, f, g = m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1]
-    cases = np.stack([np.stack([s * s, a, b, c], -1), np.stack([a, s * s, e, f], -1),
-                      np.stack([b, e, s * s, g], -1), np.stack([c, f, g, s * s], -1)], axis=-2)
-    q = np.take_along_axis(cases, k[..., None, None], axis=-2)[..., 0, :] / (2.0 * s[..., None])
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)

@@ -1,6 +1,6 @@
 """Host-side NumPy kernels on wxyz quaternions, for preprocessing that runs once outside JAX (the
-matching database's features) and for the benchmarks' NumPy peers. Same conventions as the JAX
-kernels (:mod:`jaxanim.rotations._base`); no input checks."""
+matching database's features, the robots' frames of a written result) and for the benchmarks' NumPy
+peers. Same conventions as the JAX kernels (:mod:`jaxanim.rotations._base`); no input checks."""
 
 from __future__ import annotations
 
@@ -43,3 +43,21 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1
                     ).reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """``[..., 4]`` wxyz unit quaternions of ``[..., 3, 3]`` rotation matrices, ``w >= 0`` (Shepperd's
+    method: the largest of the four squared components first)."""
+    m = np.asarray(R, np.float64)
+    tr = np.trace(m, axis1=-2, axis2=-1)
+    w = np.stack([1.0 + tr, 1.0 + 2.0 * m[..., 0, 0] - tr, 1.0 + 2.0 * m[..., 1, 1] - tr,
+                  1.0 + 2.0 * m[..., 2, 2] - tr], axis=-1)  # 4 x each squared component
+    k = np.argmax(w, axis=-1)
+    s = np.sqrt(np.maximum(np.take_along_axis(w, k[..., None], axis=-1)[..., 0], 1e-300))
+    a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    e, f, g = m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1]
+    cases = np.stack([np.stack([s * s, a, b, c], -1), np.stack([a, s * s, e, f], -1),
+                      np.stack([b, e, s * s, g], -1), np.stack([c, f, g, s * s], -1)], axis=-2)
+    q = np.take_along_axis(cases, k[..., None, None], axis=-2)[..., 0, :] / (2.0 * s[..., None])
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
