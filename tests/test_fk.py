@@ -37,6 +37,22 @@ def test_fk_matches_reference_every_frame_float64(stem):
 
 
 @pytest.mark.parametrize("stem", STEMS)
+def test_host_fk_matches_reference_every_frame(stem):
+    """The NumPy kinematics that prepares retargeting problems (kinematics._host): the same references."""
+    from jaxanim.kinematics._host import clip_frames_host
+
+    shared_data_dir()
+    skel, motion, ref = shared_clip(stem)
+    rotations, translations = np.asarray(motion.rotations), np.asarray(motion.translations)
+    R, p = clip_frames_host(skel, motion.rotations, motion.translations)
+    scale = np.abs(ref["positions"]).max()
+    assert_close("positions", p, ref["positions"], atol=_RTOL_FK64 * scale)
+    assert_close("rotations", R, ref["rotations"], atol=_ATOL_ROT64)
+    np.testing.assert_array_equal(np.asarray(motion.rotations), rotations)  # not modified
+    np.testing.assert_array_equal(np.asarray(motion.translations), translations)
+
+
+@pytest.mark.parametrize("stem", STEMS)
 def test_fk_matches_reference_float32(stem):
     shared_data_dir()
     skel, motion, ref = shared_clip(stem)

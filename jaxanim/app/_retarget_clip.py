@@ -457,12 +457,12 @@ def retarget_scene(clip: RetargetClip, shift: float | None = None) -> RetargetSc
 def _result_fk(robot, qpos, skeleton, motion, problem):
     """The robot's body frames at every frame (NumPy, :func:`~jaxanim.robots._host.body_frames_host`: a compiled
     program per clip length cost seconds of compiling) and the source's joints in the robot's frame (the
-    program that prepared the problem, on the same frames)."""
-    from ..retargeting._problem import clip_fk  # noqa: PLC0415 (the reader above needs no JAX)
+    host kinematics that prepared the problem, :func:`~jaxanim.kinematics._host.clip_frames_host`)."""
+    from ..kinematics._host import clip_frames_host  # noqa: PLC0415 (the reader above needs no JAX)
     from ..robots._host import body_frames_host  # noqa: PLC0415
 
     xpos, xmat = body_frames_host(robot, qpos)
-    src = np.asarray(clip_fk(skeleton, motion.rotations, motion.translations).positions, np.float64)
+    src = clip_frames_host(skeleton, motion.rotations, motion.translations)[1]
     p = src @ np.asarray(problem.axes, np.float64).T  # problem.in_robot_frame, on the host
     p[..., 2] -= float(problem.ground)
     p = float(problem.scale) * p

@@ -18,16 +18,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import rotations as rot
 from .._errors import JaxanimError
 from .._linalg import einsum
 from .._types import Array, Bool, Float
 from ..kinematics._contacts import contacts_from_positions, resolve_feet, true_runs
-from ..kinematics._fk import forward_kinematics as skeleton_fk
+from ..kinematics._host import clip_frames_host
+from ..rotations._numpy import matrix_to_quat, quat_to_matrix
 from ..skeleton._skeleton import Motion, Skeleton
 from ..robots._kinematics import target_rows
-from ._mapping import (Calibration, RetargetMap, _canonical_quat, _standing_feet, calibrate, load_mapping, upright,
-                       with_soles)
+from ._mapping import Calibration, RetargetMap, _standing_feet, calibrate, load_mapping, upright, with_soles
 from ..robots._robot import Robot, with_floating_base, with_surface_points
 from ..robots._tangent import free_joint_of
 
@@ -127,12 +126,10 @@ def _rot_z(angle: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-#: Compiled (op by op it compiled its operations on every new shape).
-_quat_to_matrix = jax.jit(rot.quat_to_matrix)
-
-
-def _quat(R: np.ndarray) -> np.ndarray:
-    return np.asarray(_canonical_quat(jnp.asarray(R)), np.float64)
+def _device(x, dtype=None):
+    """A host array on the device: ``jax.device_put`` (``jnp.asarray`` of a NumPy array compiled a small program
+    for every new shape)."""
+    return jax.device_put(np.asarray(x, dtype))
 
 
 def _with_root(mapping: RetargetMap) -> RetargetMap:
@@ -253,18 +250,18 @@ def prepare_retarget(
 
     axes = np.asarray(calib.axes, np.float64)
     src = [skeleton.names.index(n) for n in full.sources]
-    # the per-frame programs run on the padded length, so that a batch's clips of any length share them
-    fk = clip_fk(skeleton, padded(motion.rotations), padded(motion.translations))
-    P = np.asarray(fk.positions, np.float64)[:T, src] @ axes.T  # [T, K, 3] in the robot's axes
-    R = axes @ np.asarray(fk.rotations, np.float64)[:T, src]  # [T, K, 3, 3]
-    R_target = R @ _rot_matrices(offsets)
+    # the source's kinematics on the host (a compiled program would cost seconds per clip length)
+    R_fk, P_fk = clip_frames_host(skeleton, motion.rotations, motion.translations)
+    P = P_fk[:, src] @ axes.T  # [T, K, 3] in the robot's axes
+    R = axes @ R_fk[:, src]  # [T, K, 3, 3]
+    R_target = R @ quat_to_matrix(offsets / np.linalg.norm(offsets, axis=-1, keepdims=True))
     feet_k = [k for k in range(K) if full.feet[k]]
     foot_names = tuple(full.sources[k] for k in feet_k)
     up = 1 if mapping.source_up == "y" else 2
     if contacts is None:  # detect_foot_contacts's, from the positions above
         motion.check_frame_time("motion")
         _, idx = resolve_feet(skeleton, foot_names, up)
-        contacts = contacts_from_positions(skeleton, idx, np.asarray(fk.positions)[:T, idx], float(motion.frame_time),
+        contacts = contacts_from_positions(skeleton, idx, P_fk[:, idx], float(motion.frame_time),
                                            up, None, None, None)
     contacts = np.asarray(contacts)
     if contacts.shape != (T, len(feet_k)):
@@ -290,26 +287,15 @@ def prepare_retarget(
     return RetargetProblem(
         names=full.targets, bodies=bodies, rows=rows, feet=tuple(feet_k), foot_points=tuple(foot_points),
         oriented=tuple(k for k in range(K) if full.feet[k] or float(full.orientation_weight[k]) != 0.0),
-        positions=jnp.asarray(padded(P), dtype), orientations=jnp.asarray(_quat(padded(R_target)), dtype),
-        position_weight=jnp.asarray(full.position_weight, dtype),
-        orientation_weight=jnp.asarray(full.orientation_weight, dtype),
-        scale=jnp.asarray(calib.scale, dtype), contacts=jnp.asarray(padded(contacts, False)),
-        anchors=jnp.asarray(padded(anchors), dtype), anchor_orientations=jnp.asarray(_quat(padded(anchor_R)), dtype),
-        stance_height=jnp.asarray(stance_height, dtype), foot_height=jnp.asarray(foot_height, dtype),
-        mask=jnp.asarray(np.arange(length) < T), frame_time=jnp.asarray(float(motion.frame_time), dtype),
-        axes=jnp.asarray(axes, dtype), ground=jnp.asarray(ground, dtype), floating=floating, added_points=added,
+        positions=_device(padded(P), dtype), orientations=_device(matrix_to_quat(padded(R_target)), dtype),
+        position_weight=_device(full.position_weight, dtype),
+        orientation_weight=_device(full.orientation_weight, dtype),
+        scale=_device(calib.scale, dtype), contacts=_device(padded(contacts, False)),
+        anchors=_device(padded(anchors), dtype), anchor_orientations=_device(matrix_to_quat(padded(anchor_R)), dtype),
+        stance_height=_device(stance_height, dtype), foot_height=_device(foot_height, dtype),
+        mask=_device(np.arange(length) < T), frame_time=_device(float(motion.frame_time), dtype),
+        axes=_device(axes, dtype), ground=_device(ground, dtype), floating=floating, added_points=added,
         robot_points=len(robot.point_bodies))
-
-
-@eqx.filter_jit
-def clip_fk(skeleton: Skeleton, rotations, translations):
-    """Every frame's forward kinematics, one compiled program (op by op it took seconds per clip length); internal
-    interface: also used by the command line for the result's source positions, on the same frames."""
-    return jax.vmap(lambda q, t: skeleton_fk(skeleton, q, t))(rotations, translations)
-
-
-def _rot_matrices(quats: np.ndarray) -> np.ndarray:
-    return np.asarray(_quat_to_matrix(jnp.asarray(quats)), np.float64)
 
 
 def stack_problems(problems: Sequence[RetargetProblem]) -> RetargetProblem:
