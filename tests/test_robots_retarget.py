@@ -4,6 +4,10 @@ feet, ground, ranges), batching with padding, the gradient against finite differ
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import re
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -364,6 +368,25 @@ def test_bad_input_is_named(walk):
         retargeting.solve_retarget(robot, later)
 
 
+@contextlib.contextmanager
+def _compiled_programs():
+    """The names of the programs that JAX compiles inside the block (its ``log_compiles`` records)."""
+    names: list[str] = []
+
+    class Handler(logging.Handler):
+        def emit(self, record):
+            m = re.search(r"Compiling (\S+)", record.getMessage())
+            if m:
+                names.append(m.group(1))
+
+    logger, handler = logging.getLogger("jax"), Handler(logging.DEBUG)
+    logger.addHandler(handler)
+    try:
+        yield names
+    finally:
+        logger.removeHandler(handler)
+
+
 def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):
     from jaxanim.app import main
 
@@ -376,5 +399,15 @@ def test_cli_writes_the_npz_contract(tmp_path, walk, capsys):
         assert f["qpos"].shape == (motion.num_frames, robot.nq)
         assert {"fps", "joint_names", "body_names", "foot_slide", "penetration", "position_error"} <= set(f.files)
         np.testing.assert_allclose(f["qpos"], np.asarray(res.qpos), atol=1e-8)  # the same solve
+        assert f["foot_slide"].shape == (motion.num_frames, 2)  # the diagnostics without the padding
+    # a clip of another length in the same bucket (120 and 100 frames: 128) reuses the compiled solve
+    skel, motion = jaxanim.read_bvh(jaxanim.default_clip_path())
+    jaxanim.write_bvh(tmp_path / "short.bvh", skel, jaxanim.Motion(motion.rotations[10:110],
+                                                                 motion.translations[10:110], motion.frame_time))
+    with jax.log_compiles(True), _compiled_programs() as names:
+        assert main(["--no-compile-cache", "retarget", str(tmp_path / "short.bvh"), "--out", str(out)]) == 0
+    assert not [n for n in names if "_solve" in n or "diagnostics" in n], names
+    with np.load(out) as f:
+        assert f["qpos"].shape == (100, robot.nq)
     assert main(["retarget", "--out", str(tmp_path / "x.txt")]) == 2
     assert "--out" in capsys.readouterr().err

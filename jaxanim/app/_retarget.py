@@ -11,6 +11,7 @@ import numpy as np
 
 from .._errors import JaxanimError
 from ._common import _UI, _as_dtype, _duration, _warnings_to
+from ._retarget_dataset import bucket_length
 
 #: The clip length above which the command reports the solve's stages as it goes.
 _LONG = 300
@@ -63,20 +64,23 @@ def _cmd_retarget(args: argparse.Namespace, ui: _UI) -> int:
     if unbounded:
         ui.warning(f"{len(unbounded)} joint(s) without a range, treated as unbounded: {unbounded}")
     start = time.perf_counter()
+    T = motion.num_frames
     with _warnings_to(ui):  # a foot's default sole
+        # padded to the dataset's bucket: one compiled program (kept in the compile cache) serves clips of
+        # nearby lengths, here and in a dataset run
         problem = retargeting.prepare_retarget(skeleton, motion, robot, retargeting.auto_map(skeleton, robot)
-                                               if map_path == "auto" else map_path, fixed_base=args.fixed_base)
+                                               if map_path == "auto" else map_path, fixed_base=args.fixed_base,
+                                               length=bucket_length(T))
     if problem.floating:
         ui.progress(f"{robot.name}: its root body has no free joint; retargeting adds one, 'root_joint', first in "
                     "qpos (--fixed-base refuses this)")
     robot = retargeting.prepared_robot(robot, problem)  # the free joint and soles the problem was prepared with
-    T = motion.num_frames
     if T >= _LONG:
         ui.progress(f"{source}: {T} frames prepared (contacts, anchors) in {_duration(time.perf_counter() - start)}; "
                     f"solving the whole clip (compiling first)")
     options = retargeting.RetargetOptions(iterations=args.iterations)
     res = retargeting.solve_retarget(robot, problem, options)
-    qpos = np.asarray(jax.block_until_ready(res.qpos))
+    qpos = np.asarray(jax.block_until_ready(res.qpos))[:T]  # the clip's frames, without the padding
     seconds = time.perf_counter() - start
     if not np.all(np.isfinite(qpos)):
         raise JaxanimError(f"the solve gave non-finite values ({res.result}); nothing written")

@@ -479,14 +479,17 @@ def retarget_arrays(skeleton, motion, robot, problem, result, *, robot_path="", 
         robot: the robot as the problem was prepared on it (``retargeting.prepared_robot``): its ``qpos``
             layout, geoms and surface points (the soles added) are the result's.
         problem: the ``retargeting.RetargetProblem``.
-        result: the ``retargeting.RetargetResult`` of ``retargeting.solve_retarget(robot, problem)``.
+        result: the ``retargeting.RetargetResult`` of ``retargeting.solve_retarget(robot, problem)``; of a
+            problem padded to more frames than the clip's (``prepare_retarget(..., length=)``), the clip's
+            frames are kept.
         robot_path, source, map_path: the files, recorded as they are.
 
     Returns:
         ``{key: numpy array}``, for ``np.savez``: FK of every frame (``body_positions``, ``body_xmat``), the
         source in the robot's frame, the robot's geometry, the diagnostics and the status.
     """
-    qpos = np.asarray(result.qpos)
+    T = motion.num_frames
+    qpos = np.asarray(result.qpos)[:T]
     xpos, xmat, src = (x.astype(qpos.dtype) for x in _result_fk(robot, qpos, skeleton, motion, problem))
     d = result.diagnostics
     success = bool(result.success)
@@ -501,7 +504,7 @@ def retarget_arrays(skeleton, motion, robot, problem, result, *, robot_path="", 
         "geom_type": np.asarray(robot.geom_types, dtype=str).reshape(-1),
         **{k: np.asarray(getattr(robot, k)) for k in ("geom_size", "geom_pos", "geom_quat", "point_pos")},
         "point_body": np.asarray(robot.point_bodies, np.int64).reshape(-1),
-        **{f: np.asarray(getattr(d, f)) for f in d.__dataclass_fields__ if f != "mask"},  # the diagnostics
+        **{f: np.asarray(getattr(d, f))[:T] for f in d.__dataclass_fields__ if f != "mask"},  # the diagnostics
         "status": np.asarray("successful" if success else str(result.result)), "success": np.asarray(success),
         "robot": np.asarray(str(robot_path)), "source": np.asarray(str(source)), "map": np.asarray(str(map_path)),
     }

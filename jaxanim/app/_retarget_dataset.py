@@ -375,17 +375,6 @@ def _auto_map(cache: dict, skeleton, robot):
     return cache[key]
 
 
-def _padded_motion(motion, length: int):
-    """``motion`` with its last frame repeated up to ``length`` frames (one FK program per bucket)."""
-    from ..skeleton import Motion  # noqa: PLC0415
-
-    pad = length - motion.num_frames
-    if pad <= 0:
-        return motion
-    rep = lambda x: np.concatenate([np.asarray(x), np.repeat(np.asarray(x)[-1:], pad, axis=0)])  # noqa: E731
-    return Motion(rep(motion.rotations), rep(motion.translations), motion.frame_time)
-
-
 def _write_clip(g: dict, res, robot, args, fmt: str, robot_path: str, map_arg: str) -> dict:
     """Write one solved clip in ``fmt``; returns its manifest measures. Raises on a non-finite result."""
     from .. import retargeting  # noqa: PLC0415
@@ -400,11 +389,8 @@ def _write_clip(g: dict, res, robot, args, fmt: str, robot_path: str, map_arg: s
     clip.output.parent.mkdir(parents=True, exist_ok=True)
     fps = float(res.fps)
     if fmt == "npz":
-        arrays = retarget_arrays(g["skeleton"], _padded_motion(motion, problem.num_frames), robot, problem, res,
-                                 robot_path=robot_path, source=str(clip.path), map_path=map_arg)
-        per_frame = {"qpos", "body_positions", "body_xmat", "source_positions"} | {
-            f for f in res.diagnostics.__dataclass_fields__ if f != "mask"}
-        arrays = {k: (v[:T] if k in per_frame else v) for k, v in arrays.items()}
+        arrays = retarget_arrays(g["skeleton"], motion, robot, problem, res, robot_path=robot_path,
+                                 source=str(clip.path), map_path=map_arg)  # the clip's frames, without padding
         arrays["qvel"] = retargeting.qvel_from_qpos(robot, arrays["qpos"], fps)
         bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
         if bad:
