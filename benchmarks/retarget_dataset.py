@@ -194,7 +194,7 @@ def dataset_table(config, robot_path: pathlib.Path, sizes: DatasetSizes) -> Tabl
             "(the same as jaxanim's solve gets), each process starting, loading the robot, solving its clips and "
             "writing their qpos: mink's time leaves out reading and preparing the clips (GMR does both in numpy, "
             "not measured here), where jaxanim's includes them. One clip: the first of the dataset, jaxanim's command run "
-            "once untimed (its programs, of the clip's own length, are not the dataset's buckets') and then timed with "
+            "once untimed (its programs solve one clip padded to its bucket, where the dataset's solve batches) and then timed with "
             "the cache warm, against mink in one process. **µs / char is per frame.**"),
         targets=[Target("dataset end to end, compiling included: ≥ 3× mink's frames per second", sel(_JAX_COLD),
                         3.0, versus=sel(_MINK)),
@@ -256,7 +256,7 @@ def dataset_table(config, robot_path: pathlib.Path, sizes: DatasetSizes) -> Tabl
         first = paths[0]
         n_first = _header_frames(first)
 
-        def one_jax():  # run once to fill the cache with the clip's own programs (of its length), then timed
+        def one_jax():  # run once to fill the cache with the one-clip programs (of its bucket), then timed
             _command([*common, str(first), "--out", str(tmp / "one.npz")], cache)
             seconds = _command([*common, str(first), "--out", str(tmp / "one.npz")], cache)
             return row(_JAX_ONE, seconds, n_first, 0, 1, f"{seconds:.2f} s for {n_first} frames")
