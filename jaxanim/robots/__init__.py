@@ -1,5 +1,7 @@
 """Robots as kinematic trees: MJCF / URDF loading (through MuJoCo), forward kinematics, geometric
-Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding.
+Jacobians and the centre of mass, equal to MuJoCo's ``mj_kinematics`` / ``mj_jac`` to rounding, and
+their dynamics in joint coordinates (the mass matrix, bias and passive forces, the accelerations), equal
+to MuJoCo's ``mj_fullM``, ``qfrc_bias``, ``qfrc_passive`` and ``qacc_smooth``.
 
 Inverse kinematics on robots is :func:`jaxanim.ik.solve_ik_robot`, and retargeting human motion onto
 them is :mod:`jaxanim.retargeting`. Their old names here (``robots.retarget``,
@@ -19,6 +21,12 @@ from ._kinematics import (
     jacobian as jacobian,
 )
 from ._data import default_robot_path as default_robot_path
+from ._dynamics import (
+    bias_forces as bias_forces,
+    forward_dynamics as forward_dynamics,
+    mass_matrix as mass_matrix,
+    passive_forces as passive_forces,
+)
 from ._load import (
     RobotLoadError as RobotLoadError,
     load_robot as load_robot,

@@ -340,17 +340,24 @@ def surface_points(robot: Robot, R_world, p_world, points, dtype):
     return world, world[:, 2] - _take(robot.point_radius.astype(dtype), points)
 
 
+def dof_axes(robot: Robot, kin, dofs, dtype):
+    """``(axis, anchor)`` ``[n, 3]``: the world axis of each of the dofs ``dofs`` (a hinge's or slide's, a ball's
+    or a free joint's rotation about its body's axes, a free joint's translation along the world's) and the
+    anchor it turns about; ``kin`` is :func:`world_frames`'s output."""
+    plan = kinematic_plan(robot)
+    R_world, _, xanchor, xaxis = kin
+    columns = jnp.swapaxes(R_world, 1, 2).reshape(3 * robot.num_bodies, 3)  # row 3 b + c: column c of xmat_b
+    table = jnp.concatenate([xaxis, columns, jnp.eye(3, dtype=dtype)], axis=0)
+    return _take(table, [plan.dof_src[d] for d in dofs]), _take(xanchor, [plan.dof_joint[d] for d in dofs])
+
+
 def dof_columns(robot: Robot, kin, points, bodies, dofs, dtype):
     """``(jacp, jacr)`` ``[K, n, 3]``: MuJoCo's Jacobian columns of the dofs ``dofs`` at the target
     ``points`` on ``bodies`` (zero where a dof does not move the target's body); ``kin`` is
     :func:`world_frames`'s output."""
     plan = kinematic_plan(robot)
-    R_world, _, xanchor, xaxis = kin
     dofs = np.asarray(dofs, dtype=np.int64)
-    columns = jnp.swapaxes(R_world, 1, 2).reshape(3 * robot.num_bodies, 3)  # row 3 b + c: column c of xmat_b
-    table = jnp.concatenate([xaxis, columns, jnp.eye(3, dtype=dtype)], axis=0)
-    dof_axis = _take(table, [plan.dof_src[d] for d in dofs])[None]  # [1, n, 3]
-    dof_anchor = _take(xanchor, [plan.dof_joint[d] for d in dofs])[None]
+    dof_axis, dof_anchor = (x[None] for x in dof_axes(robot, kin, dofs, dtype))  # [1, n, 3]
     moves = plan.moves[np.asarray(bodies)][:, dofs]  # [K, n] static
     is_rot = plan.dof_rot[dofs]
     rot_mask, lin_mask = (moves & is_rot)[:, :, None], (moves & ~is_rot)[:, :, None]

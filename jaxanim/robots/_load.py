@@ -318,7 +318,7 @@ def _geoms(model) -> tuple[tuple[int, ...], tuple[str, ...], np.ndarray]:
 
 
 def robot_from_mujoco(model, *, dtype=None) -> Robot:
-    """The :class:`Robot` of a compiled ``mujoco.MjModel`` (its kinematic fields, copied).
+    """The :class:`Robot` of a compiled ``mujoco.MjModel`` (its kinematic and dynamic fields, copied).
 
     Args:
         model: a ``mujoco.MjModel``.
@@ -375,4 +375,12 @@ def robot_from_mujoco(model, *, dtype=None) -> Robot:
         geom_size=arr(np.asarray(model.geom_size).reshape(-1, 3)[geoms], (G, 3)),
         geom_pos=arr(np.asarray(model.geom_pos).reshape(-1, 3)[geoms], (G, 3)),
         geom_quat=arr(np.asarray(model.geom_quat).reshape(-1, 4)[geoms], (G, 4)),
+        body_inertia=arr(model.body_inertia, (B, 3)),
+        dof_armature=arr(model.dof_armature, (model.nv,)),
+        dof_damping=arr(model.dof_damping, (model.nv,)),
+        dof_frictionloss=arr(model.dof_frictionloss, (model.nv,)),
+        jnt_stiffness=arr(model.jnt_stiffness, (J,)),
+        qpos_spring=arr(model.qpos_spring, (model.nq,)),
+        gravity=arr(model.opt.gravity, (3,)),
+        timestep=arr(model.opt.timestep, ()),
     )

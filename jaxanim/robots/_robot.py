@@ -102,6 +102,10 @@ def _validate_structure(r: Robot) -> None:
             raise JaxanimError(f"geom_bodies: geom {g} is on body {b}, expected 1 <= body < {B} (not the world)")
 
 
+def _optional_array(x):
+    return None if x is None else jnp.asarray(x)
+
+
 class Robot(eqx.Module):
     """A robot's kinematic tree: bodies, joints (hinge, slide, ball, free), sites and masses.
 
@@ -146,6 +150,13 @@ class Robot(eqx.Module):
             half sizes; a mesh's, what MuJoCo's compiler fitted (its points are in ``point_pos``).
         geom_pos, geom_quat: ``[geoms, 3]``, ``[geoms, 4]`` the geom's frame in its body's frame
             (m; wxyz unit quaternion).
+        body_inertia: ``[bodies, 3]`` the diagonal inertia in the principal axes ``body_iquat``
+            (kg m^2); ``None`` for a robot built without it (kinematics only).
+        dof_armature, dof_damping, dof_frictionloss: ``[nv]`` each dof's armature (rotor inertia added
+            to the mass matrix's diagonal), damping and dry friction; ``None``: 0.
+        jnt_stiffness: ``[joints]`` the joints' springs, pulling toward ``qpos_spring`` ``[nq]``; ``None``: 0.
+        gravity: ``[3]`` MuJoCo's ``opt.gravity`` (m/s^2); ``None``: ``(0, 0, -9.81)``.
+        timestep: MuJoCo's ``opt.timestep`` (s); ``None``: 0.002.
     """
 
     name: str = eqx.field(static=True)
@@ -180,6 +191,14 @@ class Robot(eqx.Module):
     geom_size: Float[Array, "geoms 3"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 3)))
     geom_pos: Float[Array, "geoms 3"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 3)))
     geom_quat: Float[Array, "geoms 4"] = eqx.field(converter=jnp.asarray, default_factory=lambda: np.zeros((0, 4)))
+    body_inertia: Float[Array, "bodies 3"] | None = eqx.field(converter=_optional_array, default=None)
+    dof_armature: Float[Array, " nv"] | None = eqx.field(converter=_optional_array, default=None)
+    dof_damping: Float[Array, " nv"] | None = eqx.field(converter=_optional_array, default=None)
+    dof_frictionloss: Float[Array, " nv"] | None = eqx.field(converter=_optional_array, default=None)
+    jnt_stiffness: Float[Array, " joints"] | None = eqx.field(converter=_optional_array, default=None)
+    qpos_spring: Float[Array, " nq"] | None = eqx.field(converter=_optional_array, default=None)
+    gravity: Float[Array, "3"] | None = eqx.field(converter=_optional_array, default=None)
+    timestep: Float[Array, ""] | None = eqx.field(converter=_optional_array, default=None)
 
     def __check_init__(self):
         _validate_structure(self)
@@ -197,8 +216,13 @@ class Robot(eqx.Module):
             ("geom_size", (len(self.geom_bodies), 3), "(geoms, 3)"),
             ("geom_pos", (len(self.geom_bodies), 3), "(geoms, 3)"),
             ("geom_quat", (len(self.geom_bodies), 4), "(geoms, 4)"),
+            ("body_inertia", (B, 3), "(bodies, 3)"),
+            ("dof_armature", (self.nv,), "(nv,)"), ("dof_damping", (self.nv,), "(nv,)"),
+            ("dof_frictionloss", (self.nv,), "(nv,)"), ("jnt_stiffness", (J,), "(joints,)"),
+            ("qpos_spring", (self.nq,), "(nq,)"), ("gravity", (3,), "(3,)"), ("timestep", (), "()"),
         ):  # fmt: skip
-            check_shape(field, getattr(self, field), shape, what=f"{what} = {tuple(shape)}")
+            if getattr(self, field) is not None:
+                check_shape(field, getattr(self, field), shape, what=f"{what} = {tuple(shape)}")
 
     # --- cheap accessors -------------------------------------------------------------------------
     @property
@@ -290,7 +314,23 @@ def with_floating_base(robot: Robot, *, name: str = "root_joint") -> Robot:
         jnt_dofadr=(0,) + tuple(a + JOINT_NV["free"] for a in robot.jnt_dofadr), jnt_limited=(False,) + robot.jnt_limited,
         nq=robot.nq + JOINT_NQ["free"], nv=robot.nv + JOINT_NV["free"], jnt_pos=first([0.0, 0.0, 0.0], robot.jnt_pos),
         jnt_axis=first([0.0, 0.0, 1.0], robot.jnt_axis), jnt_range=first([-np.inf, np.inf], robot.jnt_range),
-        qpos0=jnp.concatenate([robot.body_pos[root].astype(dtype), robot.body_quat[root].astype(dtype), robot.qpos0]))
+        qpos0=jnp.concatenate([robot.body_pos[root].astype(dtype), robot.body_quat[root].astype(dtype), robot.qpos0]),
+        **_free_joint_dynamics(robot, root))
+
+
+def _free_joint_dynamics(robot: Robot, root: int) -> dict:
+    """The dynamics fields of :func:`with_floating_base`'s robot: no armature, damping, friction or spring on
+    the new free joint (its spring's rest is the root body's pose)."""
+    out = {}
+    for field, head in (("dof_armature", np.zeros(6)), ("dof_damping", np.zeros(6)),
+                        ("dof_frictionloss", np.zeros(6)), ("jnt_stiffness", np.zeros(1))):
+        x = getattr(robot, field)
+        if x is not None:
+            out[field] = jnp.concatenate([jnp.asarray(head, x.dtype), x])
+    if robot.qpos_spring is not None:
+        out["qpos_spring"] = jnp.concatenate([robot.body_pos[root], robot.body_quat[root],
+                                              robot.qpos_spring]).astype(robot.qpos_spring.dtype)
+    return out
 
 
 def with_surface_points(robot: Robot, bodies, points, radii=None) -> Robot:
