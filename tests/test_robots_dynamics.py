@@ -45,7 +45,8 @@ _MODEL = """<mujoco model="dynamics">
           <joint name="slide" type="slide" axis="1 1 0" range="-0.1 0.2" ref="0.05" armature="0.1"
                  damping="2" stiffness="5" springref="0.1"/>
           <joint name="hinge_a" type="hinge" axis="0 0 1" pos="0.02 0 0" ref="15" damping="0.1"/>
-          <joint name="hinge_b" type="hinge" axis="0 1 1" pos="0 0.01 0" range="-30 60" armature="0.03"/>
+          <joint name="hinge_b" type="hinge" axis="0 1 1" pos="0 0.01 0" range="-30 60" armature="0.03"
+                 actuatorfrcrange="-1.5 1.5"/>
           <inertial pos="0.05 0 0" mass="0.5" diaginertia="0.01 0.01 0.02"/>
           <body name="fixed_child" pos="0 0 0.1" euler="0 0 45">
             <inertial pos="0 0 0.01" mass="0.2" diaginertia="0.001 0.002 0.001"/>
@@ -54,6 +55,12 @@ _MODEL = """<mujoco model="dynamics">
       </body>
     </body>
   </worldbody>
+  <actuator>
+    <motor name="m_twist" joint="twist" gear="3" ctrlrange="-1 1" forcerange="-2 2"/>
+    <position name="p_slide" joint="slide" kp="50" kv="3" ctrlrange="-0.1 0.2"/>
+    <velocity name="v_hinge_a" joint="hinge_a" kv="4"/>
+    <motor name="m_hinge_b" joint="hinge_b" gear="2"/>
+  </actuator>
 </mujoco>
 """
 
@@ -136,9 +143,53 @@ def small():
 def test_every_joint_kind_against_mujoco(small):
     robot, model = small
     assert robot.jnt_types == ("free", "hinge", "ball", "slide", "hinge", "hinge")
+    assert robot.actuator_names == ("m_twist", "p_slide", "v_hinge_a", "m_hinge_b")
     np.testing.assert_allclose(np.asarray(robot.gravity), [0.5, -1.0, -9.0])
     assert np.any(model.jnt_stiffness) and np.any(model.dof_armature) and np.any(model.dof_damping)
     _check(robot, model, seed=0, states=5)
+
+
+def _mujoco_actuated(model, q, v, f, ctrl):
+    """MuJoCo's ``qfrc_actuator`` and ``qacc_smooth`` with the actuators on (contact off)."""
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:], data.qfrc_applied[:], data.ctrl[:] = q, v, f, ctrl
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    mujoco.mj_forward(model, data)
+    model.opt.disableflags = 0
+    return data.qfrc_actuator.copy(), data.qacc_smooth.copy()
+
+
+@pytest.mark.parametrize("name", ("small", "unitree_g1/g1.xml", "cmu_humanoid/humanoid_CMU.xml"))
+def test_actuators_against_mujoco(name, small):
+    """Motors with gears, force and control ranges, position and velocity actuators and a joint's
+    actuatorfrcrange (the small model); the G1's position actuators (kp, kv, the joints' force ranges) and the
+    CMU humanoid's geared motors. Controls beyond their ranges, so that every clamp acts."""
+    if name == "small":
+        robot, model = small
+    else:
+        model = mujoco.MjModel.from_xml_path(str(shared_data_dir() / "robots" / name))
+        robot = robots.robot_from_mujoco(model)
+    assert robot.actuator_names and all(j >= 0 for j in robot.actuator_joints)
+    rng = np.random.default_rng(3)
+    for _ in range(2):
+        q, v, f = _random_state(model, rng)
+        lo, hi = model.actuator_ctrlrange.T
+        ctrl = rng.uniform(np.where(model.actuator_ctrllimited, 1.5 * lo - 0.5 * hi, -3.0),
+                           np.where(model.actuator_ctrllimited, 1.5 * hi - 0.5 * lo, 3.0))
+        qfrc, qacc = _mujoco_actuated(model, q, v, f, ctrl)
+        _close("actuator_forces", robots.actuator_forces(robot, q, v, ctrl), qfrc)
+        _close("forward_dynamics with ctrl (qacc_smooth)", robots.forward_dynamics(robot, q, v, f, ctrl=ctrl), qacc)
+
+
+def test_an_actuator_not_modelled_is_named():
+    xml = _MODEL.replace('<velocity name="v_hinge_a" joint="hinge_a" kv="4"/>',
+                         '<general name="filtered" joint="hinge_a" dyntype="filter" dynprm="0.1"/>')
+    robot = robots.robot_from_mujoco(mujoco.MjModel.from_xml_string(xml))  # loads: kinematics need no actuators
+    q, v = np.asarray(robot.qpos0), np.zeros(robot.nv)
+    with pytest.raises(jaxanim.JaxanimError, match="filtered"):
+        robots.actuator_forces(robot, q, v, np.zeros(4))
+    with pytest.raises(jaxanim.JaxanimError, match="ctrl"):
+        robots.actuator_forces(robots.robot_from_mujoco(mujoco.MjModel.from_xml_string(_MODEL)), q, v, np.zeros(3))
 
 
 def test_vmap_equals_a_loop_and_float32_stays_float32(small):
@@ -192,6 +243,13 @@ def test_a_fixed_robot_is_the_floating_one_held(small):
                                np.asarray(robots.mass_matrix(fixed, q[7:])), rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(np.asarray(robots.passive_forces(floating, q, np.zeros(floating.nv)))[6:],
                                np.asarray(robots.passive_forces(fixed, q[7:], np.zeros(fixed.nv))), atol=1e-12)
+    # the actuators keep their joints (one index further on: the free joint comes first)
+    assert floating.actuator_names == fixed.actuator_names
+    assert [floating.jnt_names[j] for j in floating.actuator_joints] == [fixed.jnt_names[j] for j in fixed.actuator_joints]
+    ctrl = np.array([0.5, 0.05, 0.0, 3.0])
+    v = np.linspace(-1.0, 1.0, floating.nv)
+    np.testing.assert_allclose(np.asarray(robots.actuator_forces(floating, q, v, ctrl))[6:],
+                               np.asarray(robots.actuator_forces(fixed, q[7:], v[6:], ctrl)), atol=1e-12)
 
 
 def test_bad_input_is_named(small):

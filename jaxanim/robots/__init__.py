@@ -22,6 +22,7 @@ from ._kinematics import (
 )
 from ._data import default_robot_path as default_robot_path
 from ._dynamics import (
+    actuator_forces as actuator_forces,
     bias_forces as bias_forces,
     forward_dynamics as forward_dynamics,
     mass_matrix as mass_matrix,

@@ -31,7 +31,7 @@ from .._types import Array, Float
 from ._kinematics import check_qpos, dof_axes, kinematic_plan, mm, world_frames
 from ._robot import Robot
 
-__all__ = ["bias_forces", "forward_dynamics", "mass_matrix", "passive_forces"]
+__all__ = ["actuator_forces", "bias_forces", "forward_dynamics", "mass_matrix", "passive_forces"]
 
 #: MuJoCo's default ``opt.gravity``, for a robot built without it.
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -153,6 +153,61 @@ def _spring_slots(robot: Robot):
             np.asarray(rot_j, np.int64))
 
 
+def _actuation(robot: Robot, qpos, qvel, ctrl, dtype):
+    """MuJoCo's ``qfrc_actuator`` of the modelled actuators (:class:`Robot`'s ``actuator_*``)."""
+    joints = np.asarray(robot.actuator_joints, np.int64)
+    a = np.asarray([robot.jnt_qposadr[j] for j in joints], np.int64)
+    d = np.asarray([robot.jnt_dofadr[j] for j in joints], np.int64)
+    gear, bias = robot.actuator_gear.astype(dtype), robot.actuator_bias.astype(dtype)
+    ctrlrange, forcerange = robot.actuator_ctrlrange.astype(dtype), robot.actuator_forcerange.astype(dtype)
+    length, velocity = gear * qpos[a], gear * qvel[d]
+    u = jnp.clip(ctrl, ctrlrange[:, 0], ctrlrange[:, 1])
+    force = robot.actuator_gain.astype(dtype) * u + bias[:, 0] + bias[:, 1] * length + bias[:, 2] * velocity
+    force = jnp.clip(force, forcerange[:, 0], forcerange[:, 1])
+    qfrc = jnp.zeros(robot.nv, dtype).at[d].add(gear * force)
+    if robot.jnt_actfrcrange is None:
+        return qfrc
+    limit = robot.jnt_actfrcrange.astype(dtype)[np.asarray(robot.dof_joints, np.int64)]  # per dof, its joint's
+    return jnp.clip(qfrc, limit[:, 0], limit[:, 1])
+
+
+@eqx.filter_jit
+def _actuated(robot: Robot, qpos, qvel, ctrl, dtype):
+    return _actuation(robot, qpos, qvel, ctrl, dtype)
+
+
+def _check_ctrl(robot: Robot, ctrl, dtype):
+    unmodelled = [n for n, j in zip(robot.actuator_names, robot.actuator_joints) if j < 0]
+    if unmodelled:
+        raise JaxanimError(f"robot: its actuators {unmodelled} are not modelled (only those on a hinge or slide, "
+                           "without activation dynamics, with a fixed gain: motor, position, velocity)")
+    if robot.actuator_gear is None:
+        raise JaxanimError("robot: it has no actuator parameters; load it with robots.load_robot or "
+                           "robots.robot_from_mujoco")
+    U = len(robot.actuator_names)
+    check_shape("ctrl", ctrl, (U,), what=f"(actuators,) = ({U},)")
+    check_float("ctrl", ctrl)
+    return jnp.asarray(ctrl).astype(dtype)
+
+
+def actuator_forces(robot: Robot, qpos: Float[Array, " nq"], qvel: Float[Array, " nv"],
+                    ctrl: Float[Array, " actuators"]) -> Float[Array, " nv"]:
+    """The actuators' generalized forces [nv] for the controls ``ctrl`` (MuJoCo's ``qfrc_actuator``):
+    each actuator's ``ctrl`` clamped to its ``ctrlrange``, its force ``gain ctrl + bias`` (a ``motor``
+    gives ``ctrl``, a ``position`` actuator ``kp (ctrl - qpos) - kv qvel``) clamped to its
+    ``forcerange``, times its gear on its joint, and each joint's total clamped to its
+    ``actuatorfrcrange``.
+
+    Raises:
+        JaxanimError: an actuator this library does not model (named), inputs of the wrong shape.
+    """
+    qpos, qvel, dtype = _prepare(robot, qpos, qvel)
+    ctrl = _check_ctrl(robot, ctrl, dtype)
+    if not robot.actuator_names:
+        return jnp.zeros(robot.nv, dtype)
+    return _actuated(robot, qpos, qvel, ctrl, dtype)
+
+
 @eqx.filter_jit
 def _dynamics(robot: Robot, qpos, qvel, dtype, what: str):
     """One program per robot and request: ``"mass"`` M, ``"bias"``, ``"passive"`` or ``"qacc"``."""
@@ -211,14 +266,17 @@ def passive_forces(robot: Robot, qpos: Float[Array, " nq"], qvel: Float[Array, "
 
 
 def forward_dynamics(robot: Robot, qpos: Float[Array, " nq"], qvel: Float[Array, " nv"],
-                     qfrc_applied: Float[Array, " nv"] | None = None) -> Float[Array, " nv"]:
-    """The joint accelerations ``qacc`` [nv] under gravity, the passive forces and ``qfrc_applied``
-    (generalized forces in MuJoCo's dof layout, as its ``qfrc_applied``), without constraints:
-    ``M qacc = qfrc_applied + qfrc_passive - qfrc_bias`` (MuJoCo's ``qacc_smooth``; ``mj_forward``'s
-    ``qacc`` where no contact, joint limit or dry friction is active). Solved by Cholesky.
+                     qfrc_applied: Float[Array, " nv"] | None = None,
+                     ctrl: Float[Array, " actuators"] | None = None) -> Float[Array, " nv"]:
+    """The joint accelerations ``qacc`` [nv] under gravity, the passive forces, ``qfrc_applied``
+    (generalized forces in MuJoCo's dof layout, as its ``qfrc_applied``) and, given ``ctrl``, the
+    actuators (:func:`actuator_forces`), without constraints: ``M qacc = qfrc_applied +
+    qfrc_actuator + qfrc_passive - qfrc_bias`` (MuJoCo's ``qacc_smooth``; ``mj_forward``'s ``qacc``
+    where no contact, joint limit or dry friction is active). Solved by Cholesky.
 
     Raises:
-        JaxanimError: a robot without inertias, inputs of the wrong shape.
+        JaxanimError: a robot without inertias, an actuator this library does not model, inputs of the
+            wrong shape.
     """
     qpos, qvel, dtype = _prepare(robot, qpos, qvel)
     if qfrc_applied is None:
@@ -227,6 +285,8 @@ def forward_dynamics(robot: Robot, qpos: Float[Array, " nq"], qvel: Float[Array,
         check_shape("qfrc_applied", qfrc_applied, (robot.nv,), what=f"(nv,) = ({robot.nv},)")
         check_float("qfrc_applied", qfrc_applied)
         tau = jnp.asarray(qfrc_applied).astype(dtype)
+    if ctrl is not None:
+        tau = tau + actuator_forces(robot, qpos, qvel, ctrl)
     if robot.nv == 0:
         return jnp.zeros(0, dtype)
     return _qacc(robot, qpos, qvel, tau, dtype)

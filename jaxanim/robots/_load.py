@@ -383,4 +383,35 @@ def robot_from_mujoco(model, *, dtype=None) -> Robot:
         qpos_spring=arr(model.qpos_spring, (model.nq,)),
         gravity=arr(model.opt.gravity, (3,)),
         timestep=arr(model.opt.timestep, ()),
+        **_actuators(model, arr, mujoco),
     )
+
+
+def _actuators(model, arr, mujoco) -> dict:
+    """The actuators' fields of :class:`Robot`: those on a hinge or slide, without activation dynamics, with
+    a fixed gain and an affine bias or none (``motor``, ``position``, ``velocity``) are modelled; the others
+    get joint -1."""
+    U, J = model.nu, model.njnt
+    hinge_or_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    bias_kinds = (int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE))
+    joints = []
+    for i in range(U):  # the enums compared as ints (a NumPy integer is not `in` a tuple of them)
+        j = int(model.actuator_trnid[i, 0])
+        ok = (int(model.actuator_trntype[i]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+              and int(model.jnt_type[j]) in hinge_or_slide
+              and int(model.actuator_dyntype[i]) == int(mujoco.mjtDyn.mjDYN_NONE)
+              and int(model.actuator_gaintype[i]) == int(mujoco.mjtGain.mjGAIN_FIXED)
+              and int(model.actuator_biastype[i]) in bias_kinds)
+        joints.append(j if ok else -1)
+    affine = np.asarray(model.actuator_biastype).reshape(U) == int(mujoco.mjtBias.mjBIAS_AFFINE)
+    bias = np.where(affine[:, None], np.asarray(model.actuator_biasprm).reshape(U, mujoco.mjNBIAS)[:, :3], 0.0)
+    return {
+        "actuator_names": _names(model, mujoco.mjtObj.mjOBJ_ACTUATOR, U),
+        "actuator_joints": tuple(joints),
+        "actuator_gear": arr(np.asarray(model.actuator_gear).reshape(U, 6)[:, 0], (U,)),
+        "actuator_gain": arr(np.asarray(model.actuator_gainprm).reshape(U, mujoco.mjNGAIN)[:, 0], (U,)),
+        "actuator_bias": arr(bias, (U, 3)),
+        "actuator_ctrlrange": arr(unbounded_range(model.actuator_ctrlrange, model.actuator_ctrllimited), (U, 2)),
+        "actuator_forcerange": arr(unbounded_range(model.actuator_forcerange, model.actuator_forcelimited), (U, 2)),
+        "jnt_actfrcrange": arr(unbounded_range(model.jnt_actfrcrange, model.jnt_actfrclimited), (J, 2)),
+    }

@@ -157,6 +157,17 @@ class Robot(eqx.Module):
         jnt_stiffness: ``[joints]`` the joints' springs, pulling toward ``qpos_spring`` ``[nq]``; ``None``: 0.
         gravity: ``[3]`` MuJoCo's ``opt.gravity`` (m/s^2); ``None``: ``(0, 0, -9.81)``.
         timestep: MuJoCo's ``opt.timestep`` (s); ``None``: 0.002.
+        actuator_names: ``[actuators]`` names (static; empty: none).
+        actuator_joints: ``[actuators]`` the hinge or slide each actuator drives, ``-1`` for one this
+            library does not model (another transmission, activation dynamics or gain; static).
+        actuator_gear: ``[actuators]`` the transmission's gear: the joint force is ``gear * force``.
+        actuator_gain, actuator_bias: ``[actuators]``, ``[actuators, 3]`` MuJoCo's ``gainprm[0]`` and
+            ``biasprm[:3]``: ``force = gain ctrl + bias[0] + bias[1] gear qpos + bias[2] gear qvel`` (a
+            ``motor``: gain 1, bias 0; a ``position`` actuator: gain kp, bias ``(0, -kp, -kv)``).
+        actuator_ctrlrange, actuator_forcerange: ``[actuators, 2]`` the clamps of ``ctrl`` and of the
+            force (±inf where not limited).
+        jnt_actfrcrange: ``[joints, 2]`` the clamp of all actuators' force on each joint (MuJoCo's
+            ``actuatorfrcrange``; ±inf where not limited).
     """
 
     name: str = eqx.field(static=True)
@@ -199,10 +210,20 @@ class Robot(eqx.Module):
     qpos_spring: Float[Array, " nq"] | None = eqx.field(converter=_optional_array, default=None)
     gravity: Float[Array, "3"] | None = eqx.field(converter=_optional_array, default=None)
     timestep: Float[Array, ""] | None = eqx.field(converter=_optional_array, default=None)
+    actuator_names: tuple[str, ...] = eqx.field(static=True, default=())
+    actuator_joints: tuple[int, ...] = eqx.field(static=True, default=())
+    actuator_gear: Float[Array, " actuators"] | None = eqx.field(converter=_optional_array, default=None)
+    actuator_gain: Float[Array, " actuators"] | None = eqx.field(converter=_optional_array, default=None)
+    actuator_bias: Float[Array, "actuators 3"] | None = eqx.field(converter=_optional_array, default=None)
+    actuator_ctrlrange: Float[Array, "actuators 2"] | None = eqx.field(converter=_optional_array, default=None)
+    actuator_forcerange: Float[Array, "actuators 2"] | None = eqx.field(converter=_optional_array, default=None)
+    jnt_actfrcrange: Float[Array, "joints 2"] | None = eqx.field(converter=_optional_array, default=None)
 
     def __check_init__(self):
         _validate_structure(self)
-        B, J, S = self.num_bodies, self.num_joints, self.num_sites
+        B, J, S, U = self.num_bodies, self.num_joints, self.num_sites, len(self.actuator_names)
+        if len(self.actuator_joints) != U or any(not -1 <= j < J for j in self.actuator_joints):
+            raise JaxanimError(f"actuator_joints: expected {U} joint indices in [-1, {J}), got {self.actuator_joints}")
         for field, shape, what in (
             ("body_pos", (B, 3), "(bodies, 3)"), ("body_quat", (B, 4), "(bodies, 4)"),
             ("body_ipos", (B, 3), "(bodies, 3)"), ("body_iquat", (B, 4), "(bodies, 4)"),
@@ -220,6 +241,9 @@ class Robot(eqx.Module):
             ("dof_armature", (self.nv,), "(nv,)"), ("dof_damping", (self.nv,), "(nv,)"),
             ("dof_frictionloss", (self.nv,), "(nv,)"), ("jnt_stiffness", (J,), "(joints,)"),
             ("qpos_spring", (self.nq,), "(nq,)"), ("gravity", (3,), "(3,)"), ("timestep", (), "()"),
+            ("actuator_gear", (U,), "(actuators,)"), ("actuator_gain", (U,), "(actuators,)"),
+            ("actuator_bias", (U, 3), "(actuators, 3)"), ("actuator_ctrlrange", (U, 2), "(actuators, 2)"),
+            ("actuator_forcerange", (U, 2), "(actuators, 2)"), ("jnt_actfrcrange", (J, 2), "(joints, 2)"),
         ):  # fmt: skip
             if getattr(self, field) is not None:
                 check_shape(field, getattr(self, field), shape, what=f"{what} = {tuple(shape)}")
@@ -320,13 +344,18 @@ def with_floating_base(robot: Robot, *, name: str = "root_joint") -> Robot:
 
 def _free_joint_dynamics(robot: Robot, root: int) -> dict:
     """The dynamics fields of :func:`with_floating_base`'s robot: no armature, damping, friction or spring on
-    the new free joint (its spring's rest is the root body's pose)."""
+    the new free joint (its spring's rest is the root body's pose), no actuator force range on it, and the
+    actuators' joint indices one further on."""
     out = {}
     for field, head in (("dof_armature", np.zeros(6)), ("dof_damping", np.zeros(6)),
                         ("dof_frictionloss", np.zeros(6)), ("jnt_stiffness", np.zeros(1))):
         x = getattr(robot, field)
         if x is not None:
             out[field] = jnp.concatenate([jnp.asarray(head, x.dtype), x])
+    if robot.jnt_actfrcrange is not None:
+        out["jnt_actfrcrange"] = jnp.concatenate([jnp.asarray([[-np.inf, np.inf]], robot.jnt_actfrcrange.dtype),
+                                                  robot.jnt_actfrcrange])
+    out["actuator_joints"] = tuple(j + 1 if j >= 0 else j for j in robot.actuator_joints)  # the new joint is first
     if robot.qpos_spring is not None:
         out["qpos_spring"] = jnp.concatenate([robot.body_pos[root], robot.body_quat[root],
                                               robot.qpos_spring]).astype(robot.qpos_spring.dtype)
