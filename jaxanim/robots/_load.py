@@ -216,7 +216,8 @@ def _add_free_joint(spec, path):
 
 
 def load_robot(path: str | os.PathLike, *, floating_base: bool = False, dtype=None) -> Robot:
-    """Read a robot from an MJCF or URDF file (kinematics only; mesh files are never needed).
+    """Read a robot from an MJCF or URDF file: its kinematic tree, masses and inertias, the joints'
+    armature, damping and springs, and its actuators (mesh files are never needed).
 
     The format is taken from the root element (``<mujoco>`` or ``<robot>``), and both are compiled
     by MuJoCo (see the module docstring for the URDF import and its joint order).
