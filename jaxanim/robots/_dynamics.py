@@ -30,6 +30,7 @@ from .._linalg import einsum
 from .._types import Array, Float
 from ._kinematics import check_qpos, dof_axes, kinematic_plan, mm, world_frames
 from ._robot import Robot
+from ._tangent import TangentLayout, tangent_difference
 
 __all__ = ["actuator_forces", "bias_forces", "forward_dynamics", "mass_matrix", "passive_forces"]
 
@@ -91,7 +92,7 @@ def _gravity(robot: Robot, dtype):
     return jnp.asarray(DEFAULT_GRAVITY, dtype) if robot.gravity is None else robot.gravity.astype(dtype)
 
 
-def _mass_matrix(robot: Robot, kin, S, I, dtype):
+def _mass_matrix(robot: Robot, S, I, dtype):
     moves = jnp.asarray(kinematic_plan(robot).moves, dtype)  # [B, nv]
     IS = einsum("bij,dj->bdi", I, S)  # [B, nv, 6]
     M = einsum("bd,be,di,bei->de", moves, moves, S, IS)
@@ -122,35 +123,14 @@ def _passive(robot: Robot, qpos, qvel, dtype):
     out = -_dof_array(robot.dof_damping, robot.nv, dtype) * qvel
     if robot.jnt_stiffness is None or robot.qpos_spring is None:
         return out
-    k, rest = robot.jnt_stiffness.astype(dtype), robot.qpos_spring.astype(dtype)
-    lin_q, lin_d, lin_j, rot_q, rot_d, rot_j = _spring_slots(robot)
-    if lin_j.size:  # hinges, slides and the free joints' positions
-        out = out.at[lin_d].add(-k[lin_j] * (qpos[lin_q] - rest[lin_q]))
-    if rot_j.size:  # balls' and free joints' rotations: MuJoCo's subQuat, the rotation vector of rest^-1 q
-        q = rot.quat_normalize(qpos[rot_q])
-        dif = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(rest[rot_q]), q))
-        out = out.at[rot_d].add(-k[rot_j][:, None] * dif)
-    return out
-
-
-def _spring_slots(robot: Robot):
-    """Static slots of the springs: scalar coordinates ``(qpos slot, dof, joint)`` and rotations ``(qpos
-    slots [n, 4], dofs [n, 3], joint)``."""
-    lin_q, lin_d, lin_j, rot_q, rot_d, rot_j = [], [], [], [], [], []
-    for j, kind in enumerate(robot.jnt_types):
-        a, d = robot.jnt_qposadr[j], robot.jnt_dofadr[j]
-        if kind in ("hinge", "slide"):
-            lin_q.append(a), lin_d.append(d), lin_j.append(j)
-            continue
-        if kind == "free":
-            lin_q += [a, a + 1, a + 2]
-            lin_d += [d, d + 1, d + 2]
-            lin_j += [j] * 3
-            a, d = a + 3, d + 3
-        rot_q.append([a, a + 1, a + 2, a + 3]), rot_d.append([d, d + 1, d + 2]), rot_j.append(j)
-    return (np.asarray(lin_q, np.int64), np.asarray(lin_d, np.int64), np.asarray(lin_j, np.int64),
-            np.asarray(rot_q, np.int64).reshape(-1, 4), np.asarray(rot_d, np.int64).reshape(-1, 3),
-            np.asarray(rot_j, np.int64))
+    lay = TangentLayout(robot)
+    if lay.rot_q.size:  # MuJoCo normalizes the quaternions first
+        qi = lay.rot_q[:, None] + np.arange(4)
+        qpos = qpos.at[qi].set(rot.quat_normalize(qpos[qi]))
+    # each dof's displacement from the spring's rest: differences, a rotation's rotation vector of rest^-1 q
+    # (MuJoCo's subQuat)
+    stiffness = robot.jnt_stiffness.astype(dtype)[np.asarray(robot.dof_joints, np.int64)]
+    return out - stiffness * tangent_difference(lay, robot.qpos_spring.astype(dtype), qpos)
 
 
 def _actuation(robot: Robot, qpos, qvel, ctrl, dtype):
@@ -217,10 +197,10 @@ def _dynamics(robot: Robot, qpos, qvel, dtype, what: str):
     S = _motion_columns(robot, kin, dtype)
     I = _spatial_inertias(robot, kin, dtype)
     if what == "mass":
-        return _mass_matrix(robot, kin, S, I, dtype)
+        return _mass_matrix(robot, S, I, dtype)
     if what == "bias":
         return _bias(robot, S, I, qvel, dtype)
-    M = _mass_matrix(robot, kin, S, I, dtype)
+    M = _mass_matrix(robot, S, I, dtype)
     rhs = _passive(robot, qpos, qvel, dtype) - _bias(robot, S, I, qvel, dtype)
     return M, rhs
 
